@@ -1,0 +1,21 @@
+"""ProSplat: a few posed images -> 3D Gaussians in one forward pass -> enhanced novel views.
+
+The library never imports ``bpy``; the Blender add-on (``addon/``) is a thin layer on top.
+"""
+
+from prosplat.camera import Camera, CameraBatch, stack_cameras
+from prosplat.gaussians import Gaussians
+from prosplat.ply import read_ply, write_ply
+from prosplat.render import RenderOutput, render
+
+__all__ = [
+    "Camera",
+    "CameraBatch",
+    "Gaussians",
+    "RenderOutput",
+    "read_ply",
+    "render",
+    "stack_cameras",
+    "write_ply",
+]
+__version__ = "0.1.0"

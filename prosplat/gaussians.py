@@ -1,0 +1,156 @@
+"""A set of 3D Gaussians in the 3DGS parameterisation.
+
+Stored in activated form (positive scales, opacities in [0, 1]) so that what a user reads is
+what is rendered; the PLY file (``prosplat.ply``) holds the logit/log form that other splat
+tools expect. Colour is ``SH · basis + 0.5`` clamped at 0 (the 3DGS convention), so an
+``sh[:, 0]`` of ``(rgb - 0.5) / C0`` gives the colour ``rgb`` from every direction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import torch
+from torch import Tensor
+
+SH_C0 = 0.28209479177387814  # Y_0^0 = 1 / (2 sqrt(pi))
+
+
+def rgb_to_sh0(rgb: Tensor) -> Tensor:
+    """[..., 3] colour in [0, 1] -> [..., 3] degree-0 SH coefficient giving that colour."""
+    return (rgb - 0.5) / SH_C0
+
+
+def sh0_to_rgb(sh0: Tensor) -> Tensor:
+    """Inverse of :func:`rgb_to_sh0` (without the clamp)."""
+    return sh0 * SH_C0 + 0.5
+
+
+@dataclass
+class Gaussians:
+    """N anisotropic 3D Gaussians.
+
+    Attributes:
+        means: [N, 3] centres in world coordinates (scene units).
+        quats: [N, 4] rotations as quaternions (w, x, y, z); need not be unit length, not zero.
+        scales: [N, 3] standard deviations along the rotated axes, >= 0.
+        opacities: [N] in [0, 1].
+        sh: [N, K, 3] spherical-harmonic colour coefficients, K = (degree + 1)^2, degree 0-3.
+    """
+
+    means: Tensor
+    quats: Tensor
+    scales: Tensor
+    opacities: Tensor
+    sh: Tensor
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the field for wrong shapes, NaN/Inf, or out-of-range values."""
+        n = self.means.shape[0] if self.means.ndim >= 1 else -1
+        expected = {"means": (n, 3), "quats": (n, 4), "scales": (n, 3), "opacities": (n,)}
+        for name, shape in expected.items():
+            value = getattr(self, name)
+            if not isinstance(value, Tensor):
+                raise ValueError(f"Gaussians.{name} must be a torch.Tensor, got {type(value).__name__}")
+            if tuple(value.shape) != shape:
+                raise ValueError(
+                    f"Gaussians.{name} must have shape {list(shape)} (N={n} from means), got {list(value.shape)}"
+                )
+        if not isinstance(self.sh, Tensor) or self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3:
+            shape = list(self.sh.shape) if isinstance(self.sh, Tensor) else type(self.sh).__name__
+            raise ValueError(f"Gaussians.sh must have shape [N={n}, K, 3], got {shape}")
+        k = self.sh.shape[1]
+        if k not in (1, 4, 9, 16):
+            raise ValueError(f"Gaussians.sh has K={k} coefficients; K must be (degree+1)^2 for degree 0-3")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not value.is_floating_point():
+                raise ValueError(f"Gaussians.{f.name} must be a floating-point tensor, got {value.dtype}")
+            if value.numel() and not torch.isfinite(value).all():
+                bad = int((~torch.isfinite(value)).reshape(n, -1).any(dim=1).sum()) if n > 0 else 0
+                raise ValueError(f"Gaussians.{f.name} contains NaN or Inf in {bad} of {n} Gaussians")
+        if n and (self.scales < 0).any():
+            raise ValueError(
+                f"Gaussians.scales must be >= 0 (they are standard deviations, not log-scales); "
+                f"{int((self.scales < 0).any(dim=1).sum())} Gaussians have a negative scale"
+            )
+        if n and ((self.opacities < 0) | (self.opacities > 1)).any():
+            raise ValueError("Gaussians.opacities must lie in [0, 1] (activated, not logits)")
+        if n and (self.quats.detach().abs().sum(dim=1) == 0).any():
+            raise ValueError("Gaussians.quats has zero-length quaternions; use (1, 0, 0, 0) for no rotation")
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def empty(cls, sh_degree: int = 0, dtype: torch.dtype = torch.float32, device=None) -> Gaussians:
+        k = (sh_degree + 1) ** 2
+        z = lambda *s: torch.zeros(*s, dtype=dtype, device=device)  # noqa: E731
+        return cls(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, k, 3))
+
+    @classmethod
+    def from_colors(
+        cls, means: Tensor, colors: Tensor, scales: Tensor, opacities: Tensor,
+        quats: Tensor | None = None, sh_degree: int = 0,
+    ) -> Gaussians:
+        """Gaussians with view-independent colours ``colors [N,3]`` in [0, 1]."""
+        n = means.shape[0]
+        sh = torch.zeros(n, (sh_degree + 1) ** 2, 3, dtype=means.dtype, device=means.device)
+        sh[:, 0] = rgb_to_sh0(colors)
+        if quats is None:
+            quats = torch.zeros(n, 4, dtype=means.dtype, device=means.device)
+            quats[:, 0] = 1
+        return cls(means, quats, scales, opacities, sh)
+
+    @staticmethod
+    def cat(parts: Sequence[Gaussians]) -> Gaussians:
+        """Concatenate sets; SH are zero-padded to the highest degree among them."""
+        if not parts:
+            raise ValueError("Gaussians.cat needs at least one set")
+        k = max(p.sh.shape[1] for p in parts)
+        sh = [torch.nn.functional.pad(p.sh, (0, 0, 0, k - p.sh.shape[1])) for p in parts]
+        return Gaussians(
+            torch.cat([p.means for p in parts]), torch.cat([p.quats for p in parts]),
+            torch.cat([p.scales for p in parts]), torch.cat([p.opacities for p in parts]), torch.cat(sh),
+        )
+
+    # ---- access -------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    def __getitem__(self, index) -> Gaussians:
+        """A subset by slice, integer indices or boolean mask over the N Gaussians."""
+        if isinstance(index, int):
+            index = slice(index, index + 1 if index != -1 else None)
+        return Gaussians(*(getattr(self, f.name)[index] for f in fields(self)))
+
+    @property
+    def sh_degree(self) -> int:
+        return int(math.isqrt(self.sh.shape[1])) - 1
+
+    @property
+    def device(self) -> torch.device:
+        return self.means.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.means.dtype
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> Gaussians:
+        return Gaussians(*(getattr(self, f.name).to(device=device, dtype=dtype) for f in fields(self)))
+
+    def detach(self) -> Gaussians:
+        return Gaussians(*(getattr(self, f.name).detach() for f in fields(self)))
+
+    def with_sh_degree(self, degree: int) -> Gaussians:
+        """Truncate or zero-pad the SH coefficients to ``degree``."""
+        k = (degree + 1) ** 2
+        sh = self.sh[:, :k] if k <= self.sh.shape[1] else torch.nn.functional.pad(
+            self.sh, (0, 0, 0, k - self.sh.shape[1]))
+        return Gaussians(self.means, self.quats, self.scales, self.opacities, sh)
+
+    def tensors(self) -> dict[str, Tensor]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
