@@ -50,11 +50,17 @@ class Camera:
         if self.width < 1 or self.height < 1:
             raise ValueError(f"Camera size must be at least 1x1, got {self.width}x{self.height}")
         if not (K[0, 0] > 0 and K[1, 1] > 0):
-            raise ValueError(f"Camera.K focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+            raise ValueError(
+                f"Camera.K focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}"
+            )
         if not torch.allclose(K[2], K.new_tensor([0.0, 0.0, 1.0])) or K[1, 0] != 0:
-            raise ValueError(f"Camera.K must be upper triangular with last row [0, 0, 1], got {K.tolist()}")
+            raise ValueError(
+                f"Camera.K must be upper triangular with last row [0, 0, 1], got {K.tolist()}"
+            )
         if not torch.allclose(w2c[3], w2c.new_tensor([0.0, 0.0, 0.0, 1.0])):
-            raise ValueError(f"Camera.world_to_cam last row must be [0, 0, 0, 1], got {w2c[3].tolist()}")
+            raise ValueError(
+                f"Camera.world_to_cam last row must be [0, 0, 0, 1], got {w2c[3].tolist()}"
+            )
         R = w2c[:3, :3].double()
         eye = torch.eye(3, dtype=R.dtype, device=R.device)
         if not torch.allclose(R @ R.T, eye, atol=1e-4) or torch.det(R) < 0:
@@ -70,7 +76,13 @@ class Camera:
     # ---- construction -------------------------------------------------------------------
     @classmethod
     def from_intrinsics(
-        cls, fx: float, fy: float, cx: float, cy: float, width: int, height: int,
+        cls,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        width: int,
+        height: int,
         world_to_cam: Tensor | None = None,
     ) -> Camera:
         K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float64)
@@ -79,8 +91,14 @@ class Camera:
 
     @classmethod
     def look_at(
-        cls, eye: Sequence[float] | Tensor, target: Sequence[float] | Tensor, up: Sequence[float] | Tensor,
-        fx: float, width: int, height: int, fy: float | None = None,
+        cls,
+        eye: Sequence[float] | Tensor,
+        target: Sequence[float] | Tensor,
+        up: Sequence[float] | Tensor,
+        fx: float,
+        width: int,
+        height: int,
+        fy: float | None = None,
     ) -> Camera:
         """A camera at ``eye`` looking at ``target`` with image-up roughly along ``up``."""
         eye_t = torch.as_tensor(eye, dtype=torch.float64)
@@ -91,25 +109,45 @@ class Camera:
         up_t = torch.as_tensor(up, dtype=torch.float64)
         x = torch.linalg.cross(-up_t, z)  # OpenCV: y points down (−up), and x = y × z
         if x.norm() < 1e-12:
-            raise ValueError("Camera.look_at: up is parallel to the viewing direction; pick another up")
+            raise ValueError(
+                "Camera.look_at: up is parallel to the viewing direction; pick another up"
+            )
         x = x / x.norm()
         y = torch.linalg.cross(z, x)
         R = torch.stack([x, y, z])  # rows: camera axes in world coordinates
         w2c = torch.eye(4, dtype=torch.float64)
         w2c[:3, :3] = R
         w2c[:3, 3] = -R @ eye_t
-        return cls.from_intrinsics(fx, fy if fy is not None else fx, width / 2, height / 2, width, height, w2c)
+        return cls.from_intrinsics(
+            fx, fy if fy is not None else fx, width / 2, height / 2, width, height, w2c
+        )
 
     @classmethod
     def from_blender(
-        cls, matrix_world: Tensor, lens: float, sensor_width: float, sensor_height: float,
-        sensor_fit: str, shift_x: float, shift_y: float, width: int, height: int,
+        cls,
+        matrix_world: Tensor,
+        lens: float,
+        sensor_width: float,
+        sensor_height: float,
+        sensor_fit: str,
+        shift_x: float,
+        shift_y: float,
+        width: int,
+        height: int,
     ) -> Camera:
         """A camera from Blender camera data (pure math, no bpy); see :mod:`prosplat.convert.blender`."""
         from prosplat.convert.blender import camera_from_blender
 
         return camera_from_blender(
-            matrix_world, lens, sensor_width, sensor_height, sensor_fit, shift_x, shift_y, width, height
+            matrix_world,
+            lens,
+            sensor_width,
+            sensor_height,
+            sensor_fit,
+            shift_x,
+            shift_y,
+            width,
+            height,
         )
 
     def to_blender(self, sensor_width: float = 36.0):
@@ -167,9 +205,15 @@ class Camera:
     def device(self) -> torch.device:
         return self.K.device
 
-    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> Camera:
-        return Camera(self.K.to(device=device, dtype=dtype), self.world_to_cam.to(device=device, dtype=dtype),
-                      self.width, self.height)
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> Camera:
+        return Camera(
+            self.K.to(device=device, dtype=dtype),
+            self.world_to_cam.to(device=device, dtype=dtype),
+            self.width,
+            self.height,
+        )
 
     # ---- geometry -----------------------------------------------------------------------
     def world_to_camera(self, points: Tensor) -> Tensor:

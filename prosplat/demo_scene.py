@@ -24,8 +24,14 @@ _WALL_Z = 3.0
 _FLOOR_Y = 1.0
 
 
-def orbit_cameras(n: int, width: int, height: int, radius: float = 3.2, arc_deg: float = 50.0,
-                  fov_deg: float = 60.0) -> list[Camera]:
+def orbit_cameras(
+    n: int,
+    width: int,
+    height: int,
+    radius: float = 3.2,
+    arc_deg: float = 50.0,
+    fov_deg: float = 60.0,
+) -> list[Camera]:
     """``n`` cameras on a horizontal arc in front of the scene, all looking at its centre."""
     fx = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
     cams = []
@@ -61,15 +67,19 @@ def raycast(camera: Camera) -> tuple[Tensor, Tensor, Tensor]:
 def texture(points: Tensor, ident: Tensor) -> Tensor:
     """Procedural colour [..., 3] in [0, 1]: checks on the wall and floor, stripes on spheres."""
     x, y, z = points.unbind(-1)
-    checks = ((torch.floor(x * 2) + torch.floor(y * 2) + torch.floor(z * 2)) % 2)
-    base = torch.tensor([[0.8, 0.75, 0.65], [0.35, 0.45, 0.6], [0.85, 0.3, 0.2], [0.2, 0.7, 0.35],
-                         [0.9, 0.8, 0.2]], dtype=points.dtype)[ident]
+    checks = (torch.floor(x * 2) + torch.floor(y * 2) + torch.floor(z * 2)) % 2
+    base = torch.tensor(
+        [[0.8, 0.75, 0.65], [0.35, 0.45, 0.6], [0.85, 0.3, 0.2], [0.2, 0.7, 0.35], [0.9, 0.8, 0.2]],
+        dtype=points.dtype,
+    )[ident]
     stripes = 0.5 + 0.5 * torch.sin(12 * (x + 0.5 * y + 0.3 * z))
     shade = torch.where(ident < 2, 0.55 + 0.45 * checks, 0.6 + 0.4 * stripes)
     return (base * shade[..., None]).clamp(0, 1)
 
 
-def pixel_aligned_gaussians(cameras: list[Camera], opacity: float = 0.95, seed: int = 0) -> Gaussians:
+def pixel_aligned_gaussians(
+    cameras: list[Camera], opacity: float = 0.95, seed: int = 0
+) -> Gaussians:
     """One Gaussian per pixel of every camera, as a pixel-aligned generator would emit."""
     gen = torch.Generator().manual_seed(seed)
     parts = []
@@ -78,10 +88,15 @@ def pixel_aligned_gaussians(cameras: list[Camera], opacity: float = 0.95, seed: 
         n = zdepth.numel()
         footprint = (zdepth / cam.fx).reshape(n, 1)  # one pixel's size at that depth
         scales = footprint * torch.tensor([[0.8, 0.8, 0.2]], dtype=torch.float64)
-        quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=gen, dtype=torch.float64), dim=1)
+        quats = torch.nn.functional.normalize(
+            torch.randn(n, 4, generator=gen, dtype=torch.float64), dim=1
+        )
         op = opacity * (0.8 + 0.2 * torch.rand(n, generator=gen, dtype=torch.float64))
-        parts.append(Gaussians.from_colors(points.reshape(n, 3), texture(points, ident).reshape(n, 3),
-                                           scales, op, quats))
+        parts.append(
+            Gaussians.from_colors(
+                points.reshape(n, 3), texture(points, ident).reshape(n, 3), scales, op, quats
+            )
+        )
     return Gaussians.cat(parts).to(dtype=torch.float32)
 
 

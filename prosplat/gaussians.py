@@ -56,24 +56,37 @@ class Gaussians:
         for name, shape in expected.items():
             value = getattr(self, name)
             if not isinstance(value, Tensor):
-                raise ValueError(f"Gaussians.{name} must be a torch.Tensor, got {type(value).__name__}")
+                raise ValueError(
+                    f"Gaussians.{name} must be a torch.Tensor, got {type(value).__name__}"
+                )
             if tuple(value.shape) != shape:
                 raise ValueError(
                     f"Gaussians.{name} must have shape {list(shape)} (N={n} from means), got {list(value.shape)}"
                 )
-        if not isinstance(self.sh, Tensor) or self.sh.ndim != 3 or self.sh.shape[0] != n or self.sh.shape[2] != 3:
+        if (
+            not isinstance(self.sh, Tensor)
+            or self.sh.ndim != 3
+            or self.sh.shape[0] != n
+            or self.sh.shape[2] != 3
+        ):
             shape = list(self.sh.shape) if isinstance(self.sh, Tensor) else type(self.sh).__name__
             raise ValueError(f"Gaussians.sh must have shape [N={n}, K, 3], got {shape}")
         k = self.sh.shape[1]
         if k not in (1, 4, 9, 16):
-            raise ValueError(f"Gaussians.sh has K={k} coefficients; K must be (degree+1)^2 for degree 0-3")
+            raise ValueError(
+                f"Gaussians.sh has K={k} coefficients; K must be (degree+1)^2 for degree 0-3"
+            )
         for f in fields(self):
             value = getattr(self, f.name)
             if not value.is_floating_point():
-                raise ValueError(f"Gaussians.{f.name} must be a floating-point tensor, got {value.dtype}")
+                raise ValueError(
+                    f"Gaussians.{f.name} must be a floating-point tensor, got {value.dtype}"
+                )
             if value.numel() and not torch.isfinite(value).all():
                 bad = int((~torch.isfinite(value)).reshape(n, -1).any(dim=1).sum()) if n > 0 else 0
-                raise ValueError(f"Gaussians.{f.name} contains NaN or Inf in {bad} of {n} Gaussians")
+                raise ValueError(
+                    f"Gaussians.{f.name} contains NaN or Inf in {bad} of {n} Gaussians"
+                )
         if n and (self.scales < 0).any():
             raise ValueError(
                 f"Gaussians.scales must be >= 0 (they are standard deviations, not log-scales); "
@@ -82,19 +95,28 @@ class Gaussians:
         if n and ((self.opacities < 0) | (self.opacities > 1)).any():
             raise ValueError("Gaussians.opacities must lie in [0, 1] (activated, not logits)")
         if n and (self.quats.detach().abs().sum(dim=1) == 0).any():
-            raise ValueError("Gaussians.quats has zero-length quaternions; use (1, 0, 0, 0) for no rotation")
+            raise ValueError(
+                "Gaussians.quats has zero-length quaternions; use (1, 0, 0, 0) for no rotation"
+            )
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
-    def empty(cls, sh_degree: int = 0, dtype: torch.dtype = torch.float32, device=None) -> Gaussians:
+    def empty(
+        cls, sh_degree: int = 0, dtype: torch.dtype = torch.float32, device=None
+    ) -> Gaussians:
         k = (sh_degree + 1) ** 2
         z = lambda *s: torch.zeros(*s, dtype=dtype, device=device)  # noqa: E731
         return cls(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, k, 3))
 
     @classmethod
     def from_colors(
-        cls, means: Tensor, colors: Tensor, scales: Tensor, opacities: Tensor,
-        quats: Tensor | None = None, sh_degree: int = 0,
+        cls,
+        means: Tensor,
+        colors: Tensor,
+        scales: Tensor,
+        opacities: Tensor,
+        quats: Tensor | None = None,
+        sh_degree: int = 0,
     ) -> Gaussians:
         """Gaussians with view-independent colours ``colors [N,3]`` in [0, 1]."""
         n = means.shape[0]
@@ -113,8 +135,11 @@ class Gaussians:
         k = max(p.sh.shape[1] for p in parts)
         sh = [torch.nn.functional.pad(p.sh, (0, 0, 0, k - p.sh.shape[1])) for p in parts]
         return Gaussians(
-            torch.cat([p.means for p in parts]), torch.cat([p.quats for p in parts]),
-            torch.cat([p.scales for p in parts]), torch.cat([p.opacities for p in parts]), torch.cat(sh),
+            torch.cat([p.means for p in parts]),
+            torch.cat([p.quats for p in parts]),
+            torch.cat([p.scales for p in parts]),
+            torch.cat([p.opacities for p in parts]),
+            torch.cat(sh),
         )
 
     # ---- access -------------------------------------------------------------------------
@@ -140,7 +165,9 @@ class Gaussians:
         return self.means.dtype
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> Gaussians:
-        return Gaussians(*(getattr(self, f.name).to(device=device, dtype=dtype) for f in fields(self)))
+        return Gaussians(
+            *(getattr(self, f.name).to(device=device, dtype=dtype) for f in fields(self))
+        )
 
     def detach(self) -> Gaussians:
         return Gaussians(*(getattr(self, f.name).detach() for f in fields(self)))
@@ -148,8 +175,11 @@ class Gaussians:
     def with_sh_degree(self, degree: int) -> Gaussians:
         """Truncate or zero-pad the SH coefficients to ``degree``."""
         k = (degree + 1) ** 2
-        sh = self.sh[:, :k] if k <= self.sh.shape[1] else torch.nn.functional.pad(
-            self.sh, (0, 0, 0, k - self.sh.shape[1]))
+        sh = (
+            self.sh[:, :k]
+            if k <= self.sh.shape[1]
+            else torch.nn.functional.pad(self.sh, (0, 0, 0, k - self.sh.shape[1]))
+        )
         return Gaussians(self.means, self.quats, self.scales, self.opacities, sh)
 
     def tensors(self) -> dict[str, Tensor]:

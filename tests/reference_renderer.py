@@ -33,7 +33,11 @@ def render_reference(g: Gaussians, cam: Camera, background: Tensor | None = None
     W, H = cam.width, cam.height
     fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
     R, t = cam.R.to(dtype), cam.t.to(dtype)
-    bg = torch.zeros(3, dtype=dtype) if background is None else torch.as_tensor(background, dtype=dtype)
+    bg = (
+        torch.zeros(3, dtype=dtype)
+        if background is None
+        else torch.as_tensor(background, dtype=dtype)
+    )
 
     p = g.means @ R.T + t
     keep = p[:, 2] >= 0.01  # near plane
@@ -47,10 +51,13 @@ def render_reference(g: Gaussians, cam: Camera, background: Tensor | None = None
     tx = (x / z).clamp(-(cx / fx + 0.3 * tanx), (W - cx) / fx + 0.3 * tanx) * z
     ty = (y / z).clamp(-(cy / fy + 0.3 * tany), (H - cy) / fy + 0.3 * tany) * z
     zeros = torch.zeros_like(z)
-    J = torch.stack([
-        torch.stack([fx / z, zeros, -fx * tx / z**2], -1),
-        torch.stack([zeros, fy / z, -fy * ty / z**2], -1),
-    ], -2)  # [M,2,3]
+    J = torch.stack(
+        [
+            torch.stack([fx / z, zeros, -fx * tx / z**2], -1),
+            torch.stack([zeros, fy / z, -fy * ty / z**2], -1),
+        ],
+        -2,
+    )  # [M,2,3]
     Rq = _rotmat(g.quats[idx])
     S = torch.diag_embed(g.scales[idx])
     cov3 = Rq @ S @ S @ Rq.transpose(1, 2)
@@ -67,8 +74,9 @@ def render_reference(g: Gaussians, cam: Camera, background: Tensor | None = None
         dirs = None
     colors = sh_to_rgb(g.sh[idx], dirs)  # [M,3]
 
-    v, u = torch.meshgrid(torch.arange(H, dtype=dtype) + 0.5, torch.arange(W, dtype=dtype) + 0.5,
-                          indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(H, dtype=dtype) + 0.5, torch.arange(W, dtype=dtype) + 0.5, indexing="ij"
+    )
     pix = torch.stack([u, v], -1).reshape(-1, 1, 2)  # [P,1,2]
     d = pix - mean2d[None]  # [P,M,2]
     q = torch.einsum("pmi,mij,pmj->pm", d, conic, d)

@@ -14,7 +14,9 @@ from prosplat.gaussians import rgb_to_sh0
 F64 = torch.float64
 
 
-def random_gaussians(n: int, sh_degree: int, seed: int, dtype=F64, spread: float = 1.0) -> Gaussians:
+def random_gaussians(
+    n: int, sh_degree: int, seed: int, dtype=F64, spread: float = 1.0
+) -> Gaussians:
     g = torch.Generator().manual_seed(seed)
     k = (sh_degree + 1) ** 2
     return Gaussians(
@@ -74,7 +76,9 @@ def test_fast_path_matches_twin_forward_and_backward_f64(case):
     g_ref = torch.autograd.grad(weighted(ref, weights), params)
     for name, a, b in zip(("means", "quats", "scales", "opacities", "sh"), g_fast, g_ref):
         assert b.abs().max() > 0, name
-        torch.testing.assert_close(a, b, atol=1e-9 * max(1.0, b.abs().max().item()), rtol=0, msg=name)
+        torch.testing.assert_close(
+            a, b, atol=1e-9 * max(1.0, b.abs().max().item()), rtol=0, msg=name
+        )
 
 
 def test_fast_path_float32_close_to_twin_float64():
@@ -95,19 +99,25 @@ def test_single_gaussian_matches_analytic_value():
     f, z, sigma_world, o = 50.0, 2.0, 0.08, 0.7
     cam = Camera.from_intrinsics(f, f, 16.0, 16.0, 32, 32)
     g = Gaussians.from_colors(
-        torch.tensor([[0.0, 0.0, z]], dtype=F64), torch.tensor([[0.2, 0.4, 0.6]], dtype=F64),
-        torch.full((1, 3), sigma_world, dtype=F64), torch.tensor([o], dtype=F64),
+        torch.tensor([[0.0, 0.0, z]], dtype=F64),
+        torch.tensor([[0.2, 0.4, 0.6]], dtype=F64),
+        torch.full((1, 3), sigma_world, dtype=F64),
+        torch.tensor([o], dtype=F64),
     )
     out = render(g, cam)
     var = (f * sigma_world / z) ** 2 + 0.3
-    v, u = torch.meshgrid(torch.arange(32, dtype=F64) + 0.5, torch.arange(32, dtype=F64) + 0.5,
-                          indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(32, dtype=F64) + 0.5, torch.arange(32, dtype=F64) + 0.5, indexing="ij"
+    )
     alpha = o * torch.exp(-((u - 16) ** 2 + (v - 16) ** 2) / (2 * var))
     alpha = torch.where(alpha >= 1 / 255, alpha, torch.zeros_like(alpha))
     torch.testing.assert_close(out.alpha, alpha, atol=1e-12, rtol=0)
-    torch.testing.assert_close(out.rgb, alpha * torch.tensor([0.2, 0.4, 0.6], dtype=F64)[:, None, None],
-                               atol=1e-12, rtol=0)
-    torch.testing.assert_close(out.depth[alpha > 0], torch.full_like(out.depth[alpha > 0], z), atol=1e-12, rtol=0)
+    torch.testing.assert_close(
+        out.rgb, alpha * torch.tensor([0.2, 0.4, 0.6], dtype=F64)[:, None, None], atol=1e-12, rtol=0
+    )
+    torch.testing.assert_close(
+        out.depth[alpha > 0], torch.full_like(out.depth[alpha > 0], z), atol=1e-12, rtol=0
+    )
 
 
 def test_opaque_plane_gives_its_depth_and_colour():
@@ -115,8 +125,12 @@ def test_opaque_plane_gives_its_depth_and_colour():
     xs = torch.linspace(-4, 4, n, dtype=F64)
     gx, gy = torch.meshgrid(xs, xs, indexing="ij")
     means = torch.stack([gx.flatten(), gy.flatten(), torch.full((n * n,), 3.0, dtype=F64)], -1)
-    g = Gaussians.from_colors(means, torch.full((n * n, 3), 0.25, dtype=F64),
-                              torch.full((n * n, 3), 0.15, dtype=F64), torch.ones(n * n, dtype=F64))
+    g = Gaussians.from_colors(
+        means,
+        torch.full((n * n, 3), 0.25, dtype=F64),
+        torch.full((n * n, 3), 0.15, dtype=F64),
+        torch.ones(n * n, dtype=F64),
+    )
     out = render(g, Camera.from_intrinsics(20, 20, 16, 12, 32, 24), background=torch.ones(3))
     assert out.alpha.min() > 0.999
     torch.testing.assert_close(out.depth, torch.full_like(out.depth, 3.0), atol=1e-9, rtol=0)
@@ -127,8 +141,13 @@ def test_view_dependent_colour_follows_sh_degree_1():
     """Y_1 coefficients on one channel: colour = 0.5 + C0·c0 − C1·y·c1 + C1·z·c2 − C1·x·c3."""
     sh = torch.zeros(1, 4, 3, dtype=F64)
     sh[0, 3, 0] = 0.5  # red varies with the x component of the view direction
-    g = Gaussians(torch.tensor([[0.0, 0.0, 0.0]], dtype=F64), torch.tensor([[1.0, 0, 0, 0]], dtype=F64),
-                  torch.full((1, 3), 0.5, dtype=F64), torch.tensor([0.9], dtype=F64), sh)
+    g = Gaussians(
+        torch.tensor([[0.0, 0.0, 0.0]], dtype=F64),
+        torch.tensor([[1.0, 0, 0, 0]], dtype=F64),
+        torch.full((1, 3), 0.5, dtype=F64),
+        torch.tensor([0.9], dtype=F64),
+        sh,
+    )
     for eye_x in (-3.0, 3.0):
         cam = Camera.look_at((eye_x, 0, -3), (0, 0, 0), (0, -1, 0), 20, 16, 16)
         out = render(g, cam)
@@ -136,8 +155,12 @@ def test_view_dependent_colour_follows_sh_degree_1():
         d = d / d.norm()
         red = max(0.0, 0.5 - 0.4886025119029199 * d[0].item() * 0.5)
         centre_alpha = out.alpha[7:9, 7:9].mean()
-        torch.testing.assert_close(out.rgb[0, 7:9, 7:9].mean() / centre_alpha, torch.tensor(red, dtype=F64),
-                                   atol=1e-9, rtol=0)
+        torch.testing.assert_close(
+            out.rgb[0, 7:9, 7:9].mean() / centre_alpha,
+            torch.tensor(red, dtype=F64),
+            atol=1e-9,
+            rtol=0,
+        )
 
 
 # ---- numerical stability ------------------------------------------------------------------
@@ -149,9 +172,13 @@ def _one(means, scales, opacity=0.8, quat=(1.0, 0.0, 0.0, 0.0), n=1, sh_degree=1
     sh = torch.zeros(n, k, 3)
     sh[:, 0] = rgb_to_sh0(torch.tensor([0.9, 0.5, 0.1]))
     sh[:, 1:] = 0.1
-    return Gaussians(means, torch.tensor([quat], dtype=torch.float32).expand(n, 4).clone(),
-                     torch.as_tensor(scales, dtype=torch.float32).reshape(-1, 3).expand(n, 3).clone(),
-                     torch.full((n,), float(opacity)), sh)
+    return Gaussians(
+        means,
+        torch.tensor([quat], dtype=torch.float32).expand(n, 4).clone(),
+        torch.as_tensor(scales, dtype=torch.float32).reshape(-1, 3).expand(n, 3).clone(),
+        torch.full((n,), float(opacity)),
+        sh,
+    )
 
 
 HARD = {
@@ -180,7 +207,9 @@ HARD = {
 def test_hard_cases_finite_images_and_gradients(name):
     g, cam_kwargs = HARD[name]
     kw = dict(width=24, height=20, f=20.0) | cam_kwargs
-    cam = Camera.from_intrinsics(kw["f"], kw["f"], kw["width"] / 2, kw["height"] / 2, kw["width"], kw["height"])
+    cam = Camera.from_intrinsics(
+        kw["f"], kw["f"], kw["width"] / 2, kw["height"] / 2, kw["width"], kw["height"]
+    )
     g, params = with_grad(g)
     bg = torch.tensor([0.1, 0.2, 0.3])
     out = render(g, cam, background=bg)
@@ -194,16 +223,27 @@ def test_hard_cases_finite_images_and_gradients(name):
         assert out.alpha.max() > 0.4
     loss = out.rgb.square().sum() + out.alpha.sum() + out.depth.sum()
     if loss.requires_grad:
-        for p, grad in zip(params, torch.autograd.grad(loss, params, allow_unused=True)):
+        for grad in torch.autograd.grad(loss, params, allow_unused=True):
             assert grad is None or torch.isfinite(grad).all(), name
 
 
-@pytest.mark.parametrize("name", ["needle_rotated", "huge_covers_frame", "many_coincident", "focal_1e5",
-                                  "just_past_near_plane", "odd_size"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "needle_rotated",
+        "huge_covers_frame",
+        "many_coincident",
+        "focal_1e5",
+        "just_past_near_plane",
+        "odd_size",
+    ],
+)
 def test_hard_cases_agree_with_twin(name):
     g, cam_kwargs = HARD[name]
     kw = dict(width=24, height=20, f=20.0) | cam_kwargs
-    cam = Camera.from_intrinsics(kw["f"], kw["f"], kw["width"] / 2, kw["height"] / 2, kw["width"], kw["height"])
+    cam = Camera.from_intrinsics(
+        kw["f"], kw["f"], kw["width"] / 2, kw["height"] / 2, kw["width"], kw["height"]
+    )
     g64 = g.to(dtype=F64)
     fast = render(g64, cam)
     ref = render_reference(g64, cam)

@@ -54,8 +54,9 @@ def _gsplat_available(device: torch.device) -> bool:
     return True
 
 
-def render(gaussians: Gaussians, camera: Camera, background: Tensor | None = None,
-           backend: str = "auto") -> RenderOutput:
+def render(
+    gaussians: Gaussians, camera: Camera, background: Tensor | None = None, backend: str = "auto"
+) -> RenderOutput:
     """Render ``gaussians`` from ``camera``; differentiable w.r.t. every Gaussian parameter.
 
     Args:
@@ -92,8 +93,16 @@ def _render_cpu(gaussians: Gaussians, camera: Camera, bg: Tensor) -> RenderOutpu
     idx = torch.nonzero(proj.valid).squeeze(1)
     order = idx[torch.argsort(proj.depths.detach()[idx], stable=True)]
     feats = torch.cat([proj.colors, proj.depths[:, None]], dim=1)  # [N,4]
-    out, trans = composite(proj.means2d, proj.conics, proj.opacities, feats, proj.boxes, order,
-                           camera.width, camera.height)
+    out, trans = composite(
+        proj.means2d,
+        proj.conics,
+        proj.opacities,
+        feats,
+        proj.boxes,
+        order,
+        camera.width,
+        camera.height,
+    )
     alpha = 1.0 - trans
     rgb = out[:3] + trans[None] * bg[:, None, None]
     depth = torch.where(alpha > 0, out[3] / alpha.clamp_min(1e-6), torch.zeros_like(alpha))

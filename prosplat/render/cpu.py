@@ -35,8 +35,20 @@ class _Composite(torch.autograd.Function):
         last = torch.empty(height, width, dtype=torch.int32)
         n_threads = torch.get_num_threads()
         _kernel("forward", means2d.dtype)(
-            order.numel(), n_feat, width, height, _ptr(means2d), _ptr(conics), _ptr(opacities),
-            _ptr(feats), _ptr(boxes), _ptr(order), _ptr(out), _ptr(trans), _ptr(last), n_threads,
+            order.numel(),
+            n_feat,
+            width,
+            height,
+            _ptr(means2d),
+            _ptr(conics),
+            _ptr(opacities),
+            _ptr(feats),
+            _ptr(boxes),
+            _ptr(order),
+            _ptr(out),
+            _ptr(trans),
+            _ptr(last),
+            n_threads,
         )
         ctx.save_for_backward(means2d, conics, opacities, feats, boxes, order, trans, last)
         ctx.size = (width, height)
@@ -47,22 +59,44 @@ class _Composite(torch.autograd.Function):
         means2d, conics, opacities, feats, boxes, order, trans, last = ctx.saved_tensors
         width, height = ctx.size
         n, n_feat = feats.shape
-        grad_out = (torch.zeros_like(trans).expand(n_feat, -1, -1) if grad_out is None else grad_out)
+        grad_out = torch.zeros_like(trans).expand(n_feat, -1, -1) if grad_out is None else grad_out
         grad_trans = torch.zeros_like(trans) if grad_trans is None else grad_trans
         grad_out, grad_trans = grad_out.contiguous(), grad_trans.contiguous()
         n_threads = torch.get_num_threads()
         grads = means2d.new_zeros(n_threads, n, 6 + n_feat)
         _kernel("backward", means2d.dtype)(
-            order.numel(), n_feat, width, height, _ptr(means2d), _ptr(conics), _ptr(opacities),
-            _ptr(feats), _ptr(boxes), _ptr(order), _ptr(trans), _ptr(last), _ptr(grad_out),
-            _ptr(grad_trans), _ptr(grads), n, n_threads,
+            order.numel(),
+            n_feat,
+            width,
+            height,
+            _ptr(means2d),
+            _ptr(conics),
+            _ptr(opacities),
+            _ptr(feats),
+            _ptr(boxes),
+            _ptr(order),
+            _ptr(trans),
+            _ptr(last),
+            _ptr(grad_out),
+            _ptr(grad_trans),
+            _ptr(grads),
+            n,
+            n_threads,
         )
         g = grads.sum(0)
         return g[:, 0:2], g[:, 2:5], g[:, 5], g[:, 6:], None, None, None, None
 
 
-def composite(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, boxes: Tensor,
-              order: Tensor, width: int, height: int) -> tuple[Tensor, Tensor]:
+def composite(
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    feats: Tensor,
+    boxes: Tensor,
+    order: Tensor,
+    width: int,
+    height: int,
+) -> tuple[Tensor, Tensor]:
     """Composite screen-space Gaussians.
 
     Args:

@@ -55,7 +55,9 @@ def _build(target: Path) -> None:
         cmd = [_compiler(), *_FLAGS, str(_SOURCE), "-o", str(out)]
         result = subprocess.run(cmd, capture_output=True, text=True)
         if result.returncode != 0:
-            raise RuntimeError(f"building the CPU rasterizer failed:\n{' '.join(cmd)}\n{result.stderr}")
+            raise RuntimeError(
+                f"building the CPU rasterizer failed:\n{' '.join(cmd)}\n{result.stderr}"
+            )
         os.replace(out, target)  # atomic: concurrent builders never see a half-written library
 
 
@@ -84,4 +86,6 @@ def _declare(lib: ctypes.CDLL) -> None:
         bwd.restype = None
     lib.prosplat_abi_version.restype = ctypes.c_int
     if lib.prosplat_abi_version() != 1:
-        raise RuntimeError("stale ProSplat kernel library; delete the cache folder " + str(cache_dir()))
+        raise RuntimeError(
+            "stale ProSplat kernel library; delete the cache folder " + str(cache_dir())
+        )

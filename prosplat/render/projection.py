@@ -59,9 +59,15 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
     w, x, y, z = q.unbind(-1)
     return torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     ).reshape(*q.shape[:-1], 3, 3)
@@ -72,7 +78,9 @@ def view_directions(means: Tensor, center: Tensor) -> Tensor:
     d = means - center
     sq = (d * d).sum(-1, keepdim=True)
     ok = sq > 1e-24
-    return torch.where(ok, d / torch.sqrt(torch.where(ok, sq, torch.ones_like(sq))), torch.zeros_like(d))
+    return torch.where(
+        ok, d / torch.sqrt(torch.where(ok, sq, torch.ones_like(sq))), torch.zeros_like(d)
+    )
 
 
 def project_gaussians(gaussians: Gaussians, camera: Camera) -> ProjectedGaussians:
@@ -99,7 +107,9 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> ProjectedGaussian
     yz_c = yz.clamp(-(cy / fy + FOV_CLAMP * tan_y), (H - cy) / fy + FOV_CLAMP * tan_y)
 
     # M = J · R_cam · R_q · diag(s): the 2x3 map whose M Mᵀ is the undilated 2D covariance.
-    axes = R @ quat_to_rotmat(gaussians.quats.to(f64)) * gaussians.scales.to(f64)[:, None, :]  # [N,3,3]
+    axes = (
+        R @ quat_to_rotmat(gaussians.quats.to(f64)) * gaussians.scales.to(f64)[:, None, :]
+    )  # [N,3,3]
     inv_z = 1.0 / z_safe
     row0 = fx * inv_z[:, None] * (axes[:, 0] - xz_c[:, None] * axes[:, 2])  # [N,3]
     row1 = fy * inv_z[:, None] * (axes[:, 1] - yz_c[:, None] * axes[:, 2])  # [N,3]
@@ -135,6 +145,11 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> ProjectedGaussian
         dirs = None
     colors = sh_to_rgb(gaussians.sh, dirs)
     return ProjectedGaussians(
-        means2d=means2d.to(out_dtype), conics=conics.to(out_dtype), depths=z.to(out_dtype),
-        colors=colors, opacities=opacities, boxes=boxes.contiguous(), valid=valid,
+        means2d=means2d.to(out_dtype),
+        conics=conics.to(out_dtype),
+        depths=z.to(out_dtype),
+        colors=colors,
+        opacities=opacities,
+        boxes=boxes.contiguous(),
+        valid=valid,
     )

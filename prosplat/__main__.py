@@ -1,0 +1,3 @@
+from prosplat.cli import main
+
+main()
