@@ -27,6 +27,16 @@ CONFIGS = [("64²/4K", 64, (64, 32)), ("256²/131K", 256, (256, 256)), ("512²/5
 TWIN_MAX_PAIRS = 5e7  # the dense twin holds pixels x Gaussians per tensor
 
 
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def _rss_bytes() -> int:
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * resource.getpagesize()
@@ -127,7 +137,7 @@ def main() -> None:
                 if r["config"] == label:
                     r["max_abs_diff_vs_twin"] = diff
 
-    machine = f"{platform.processor() or platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}"
+    machine = f"{_cpu_name()}, {torch.get_num_threads()} threads, torch {torch.__version__}"
     print(f"\nMachine: {machine}; median of {args.repeats} runs\n")
     print("| config | path | fwd ms | fwd+bwd ms | fwd peak MB | fwd+bwd peak MB |")
     print("|---|---|---:|---:|---:|---:|")
