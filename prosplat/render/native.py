@@ -19,15 +19,12 @@ import tempfile
 import threading
 from pathlib import Path
 
+from prosplat.paths import cache_dir
+
 _SOURCE = Path(__file__).with_name("_cpu_kernels.cpp")
 _FLAGS = ["-O3", "-std=c++17", "-shared", "-fPIC", "-ffp-contract=off", "-pthread"]
 _lock = threading.Lock()
 _lib: ctypes.CDLL | None = None
-
-
-def cache_dir() -> Path:
-    """Where ProSplat keeps derived files (compiled kernels, converted weights)."""
-    return Path(os.environ.get("PROSPLAT_CACHE", Path.home() / ".cache" / "prosplat"))
 
 
 def _compiler() -> str:
