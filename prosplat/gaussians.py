@@ -51,7 +51,8 @@ class Gaussians:
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the field for wrong shapes, NaN/Inf, or out-of-range values."""
-        n = self.means.shape[0] if self.means.ndim >= 1 else -1
+        means_ok = isinstance(self.means, Tensor) and self.means.ndim >= 1
+        n = self.means.shape[0] if means_ok else -1  # a non-tensor fails the check below
         expected = {"means": (n, 3), "quats": (n, 4), "scales": (n, 3), "opacities": (n,)}
         for name, shape in expected.items():
             value = getattr(self, name)
@@ -148,7 +149,11 @@ class Gaussians:
 
     def __getitem__(self, index) -> Gaussians:
         """A subset by slice, integer indices or boolean mask over the N Gaussians."""
+        if isinstance(index, Tensor) and index.ndim == 0 and index.dtype != torch.bool:
+            index = int(index)  # a 0-d index tensor (e.g. from argmax) is one Gaussian
         if isinstance(index, int):
+            if not -len(self) <= index < len(self):  # a slice would silently give an empty set
+                raise IndexError(f"Gaussian index {index} out of range for {len(self)} Gaussians")
             index = slice(index, index + 1 if index != -1 else None)
         return Gaussians(*(getattr(self, f.name)[index] for f in fields(self)))
 
