@@ -83,19 +83,26 @@ class Gaussians:
                 raise ValueError(
                     f"Gaussians.{f.name} must be a floating-point tensor, got {value.dtype}"
                 )
-            if value.numel() and not torch.isfinite(value).all():
+            # One reduction first (a sum is finite iff every term is, barring overflow);
+            # the element-wise test runs only when it is not. validate() runs per render.
+            if (
+                value.numel()
+                and not torch.isfinite(value.detach().sum())
+                and not torch.isfinite(value).all()
+            ):
                 bad = int((~torch.isfinite(value)).reshape(n, -1).any(dim=1).sum()) if n > 0 else 0
                 raise ValueError(
                     f"Gaussians.{f.name} contains NaN or Inf in {bad} of {n} Gaussians"
                 )
-        if n and (self.scales < 0).any():
+        if n and self.scales.detach().min() < 0:
             raise ValueError(
                 f"Gaussians.scales must be >= 0 (they are standard deviations, not log-scales); "
                 f"{int((self.scales < 0).any(dim=1).sum())} Gaussians have a negative scale"
             )
-        if n and ((self.opacities < 0) | (self.opacities > 1)).any():
+        lo, hi = torch.aminmax(self.opacities.detach()) if n else (0, 0)
+        if lo < 0 or hi > 1:
             raise ValueError("Gaussians.opacities must lie in [0, 1] (activated, not logits)")
-        if n and (self.quats.detach().abs().sum(dim=1) == 0).any():
+        if n and self.quats.detach().abs().amax(dim=1).min() == 0:
             raise ValueError(
                 "Gaussians.quats has zero-length quaternions; use (1, 0, 0, 0) for no rotation"
             )

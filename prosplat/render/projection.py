@@ -12,8 +12,8 @@ the mean with x/z, y/z clamped to 1.3x the field of view, the 2D covariance is d
   lengths of 1e5 px and Gaussians 1e7 away stay finite.
 
 Each Gaussian also gets an inclusive pixel box outside which its alpha is provably below
-1/255 (an opacity-aware radius, ``sqrt(2 ln(255·o) λ_max)``), so tile culling never changes
-the image: the rasterizer is exactly "skip samples under 1/255".
+1/255 (the bounding box of the ellipse ``dᵀΣ⁻¹d = 2 ln(255·o)``), so tile culling never
+changes the image: the rasterizer is exactly "skip samples under 1/255".
 """
 
 from __future__ import annotations
@@ -55,22 +55,18 @@ class ProjectedGaussians:
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
     """[N,4] (w,x,y,z), any non-zero length -> [N,3,3] rotation matrices."""
-    q = quats / quats.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(*q.shape[:-1], 3, 3)
+    rows = _rotation_entries(quats.T)
+    return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
+
+
+def _rotation_entries(q: Tensor) -> list[list[Tensor]]:
+    """[4,N] quaternion components -> 3x3 nested list of [N] rotation-matrix entries."""
+    w, x, y, z = q / torch.sqrt((q * q).sum(0))
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
 
 
 def view_directions(means: Tensor, center: Tensor) -> Tensor:
@@ -84,63 +80,77 @@ def view_directions(means: Tensor, center: Tensor) -> Tensor:
 
 
 def project_gaussians(gaussians: Gaussians, camera: Camera) -> ProjectedGaussians:
-    """Project ``gaussians`` into ``camera`` (differentiable w.r.t. every Gaussian parameter)."""
+    """Project ``gaussians`` into ``camera`` (differentiable w.r.t. every Gaussian parameter).
+
+    Written structure-of-arrays (one [N] tensor per component): torch reduces over a
+    trailing dimension of 3 several times slower than it adds rows, and this runs per view.
+    """
     if camera.K[0, 1] != 0:
         raise ValueError("the rasterizer needs a camera without skew (K[0,1] == 0)")
     out_dtype = gaussians.dtype
     f64 = torch.float64
-    means = gaussians.means.to(f64)
-    R = camera.R.to(device=means.device, dtype=f64)
-    t = camera.t.to(device=means.device, dtype=f64)
+    device = gaussians.device
+    Rc = camera.R.to(dtype=f64).tolist()
     W, H = camera.width, camera.height
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
 
-    pc = means @ R.T + t  # [N,3] camera space
-    z = pc[:, 2]
+    m = gaussians.means.to(f64).T  # [3,N]
+    pc = camera.R.to(device=device, dtype=f64) @ m + camera.t.to(device=device, dtype=f64)[:, None]
+    x, y, z = pc  # camera space, [N] each
     in_front = z >= NEAR_PLANE
     z_safe = torch.where(in_front, z, torch.ones_like(z))
-    xz, yz = pc[:, 0] / z_safe, pc[:, 1] / z_safe
+    inv_z = 1.0 / z_safe
+    xz, yz = x * inv_z, y * inv_z
     means2d = torch.stack([fx * xz + cx, fy * yz + cy], dim=-1)  # [N,2]
 
     tan_x, tan_y = 0.5 * W / fx, 0.5 * H / fy
     xz_c = xz.clamp(-(cx / fx + FOV_CLAMP * tan_x), (W - cx) / fx + FOV_CLAMP * tan_x)
     yz_c = yz.clamp(-(cy / fy + FOV_CLAMP * tan_y), (H - cy) / fy + FOV_CLAMP * tan_y)
 
-    # M = J · R_cam · R_q · diag(s): the 2x3 map whose M Mᵀ is the undilated 2D covariance.
-    axes = (
-        R @ quat_to_rotmat(gaussians.quats.to(f64)) * gaussians.scales.to(f64)[:, None, :]
-    )  # [N,3,3]
-    inv_z = 1.0 / z_safe
-    row0 = fx * inv_z[:, None] * (axes[:, 0] - xz_c[:, None] * axes[:, 2])  # [N,3]
-    row1 = fy * inv_z[:, None] * (axes[:, 1] - yz_c[:, None] * axes[:, 2])  # [N,3]
-    a0, c0 = (row0 * row0).sum(-1), (row1 * row1).sum(-1)
-    b = (row0 * row1).sum(-1)
+    # Rows of M = J · R_cam · R_q · diag(s), the 2x3 map whose M Mᵀ is the undilated 2D
+    # covariance: J·R_cam has rows v0 = fx/z (R_cam[0] - x/z R_cam[2]), v1 likewise.
+    ux, uy = fx * inv_z, fy * inv_z
+    v0 = [ux * (Rc[0][k] - xz_c * Rc[2][k]) for k in range(3)]
+    v1 = [uy * (Rc[1][k] - yz_c * Rc[2][k]) for k in range(3)]
+    rq = _rotation_entries(gaussians.quats.to(f64).T)
+    s = gaussians.scales.to(f64).T  # [3,N]
+    row0 = [(v0[0] * rq[0][j] + v0[1] * rq[1][j] + v0[2] * rq[2][j]) * s[j] for j in range(3)]
+    row1 = [(v1[0] * rq[0][j] + v1[1] * rq[1][j] + v1[2] * rq[2][j]) * s[j] for j in range(3)]
+    a0 = row0[0] * row0[0] + row0[1] * row0[1] + row0[2] * row0[2]
+    c0 = row1[0] * row1[0] + row1[1] * row1[1] + row1[2] * row1[2]
+    b = row0[0] * row1[0] + row0[1] * row1[1] + row0[2] * row1[2]
     a, c = a0 + DILATION, c0 + DILATION
-    cross = torch.linalg.cross(row0, row1)
-    det = (cross * cross).sum(-1) + DILATION * (a0 + c0) + DILATION**2
-    conics = torch.stack([c / det, -b / det, a / det], dim=-1)  # [N,3]
+    # Cauchy-Binet: det(M Mᵀ) = |row0 × row1|², a sum of squares, never negative.
+    k0 = row0[1] * row1[2] - row0[2] * row1[1]
+    k1 = row0[2] * row1[0] - row0[0] * row1[2]
+    k2 = row0[0] * row1[1] - row0[1] * row1[0]
+    det = k0 * k0 + k1 * k1 + k2 * k2 + DILATION * (a0 + c0) + DILATION**2
+    inv_det = 1.0 / det
+    conics = torch.stack([c * inv_det, -b * inv_det, a * inv_det], dim=-1)  # [N,3]
 
     opacities = gaussians.opacities
     with torch.no_grad():
-        half_diff = 0.5 * (a - c)
-        lam_max = 0.5 * (a + c) + torch.sqrt(half_diff * half_diff + b * b)
+        # alpha >= 1/255 needs dᵀ Σ⁻¹ d <= r² = 2 ln(255 o); that ellipse's half-widths are
+        # r·sqrt(Σ_xx) and r·sqrt(Σ_yy). A small margin covers float32 rounding in the kernel.
         o = opacities.detach().to(f64)
         visible_o = o >= MIN_ALPHA
-        log_term = torch.log((255.0 * o).clamp_min(1.0))
-        radius = torch.sqrt(2.0 * log_term * lam_max) * (1 + 1e-4) + 1e-3
-        u, v = means2d[:, 0], means2d[:, 1]
-        x0 = torch.ceil(u - radius - 0.5).clamp(0, W)
-        x1 = torch.floor(u + radius - 0.5).clamp(-1, W - 1)
-        y0 = torch.ceil(v - radius - 0.5).clamp(0, H)
-        y1 = torch.floor(v + radius - 0.5).clamp(-1, H - 1)
-        valid = in_front & visible_o & (x0 <= x1) & (y0 <= y1) & torch.isfinite(radius)
+        r2 = 2.0 * torch.log((255.0 * o).clamp_min(1.0))
+        half_w = torch.sqrt(r2 * a) * (1 + 1e-4) + 1e-3
+        half_h = torch.sqrt(r2 * c) * (1 + 1e-4) + 1e-3
+        u, v = means2d[:, 0].detach(), means2d[:, 1].detach()
+        x0 = torch.ceil(u - half_w - 0.5).clamp(0, W)
+        x1 = torch.floor(u + half_w - 0.5).clamp(-1, W - 1)
+        y0 = torch.ceil(v - half_h - 0.5).clamp(0, H)
+        y1 = torch.floor(v + half_h - 0.5).clamp(-1, H - 1)
+        finite = torch.isfinite(half_w) & torch.isfinite(half_h)
+        valid = in_front & visible_o & (x0 <= x1) & (y0 <= y1) & finite
         boxes = torch.stack([x0, x1, y0, y1], dim=-1)
         boxes = torch.where(valid[:, None], boxes, boxes.new_tensor([1.0, 0.0, 1.0, 0.0]))
         boxes = boxes.to(torch.int32)
 
     if gaussians.sh.shape[1] > 1:
-        center = camera.center.to(device=means.device, dtype=f64)
-        dirs = view_directions(means, center).to(out_dtype)
+        center = camera.center.to(device=device, dtype=out_dtype)
+        dirs = view_directions(gaussians.means, center)
     else:
         dirs = None
     colors = sh_to_rgb(gaussians.sh, dirs)
