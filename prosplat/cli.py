@@ -46,6 +46,79 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scenes_render(args: argparse.Namespace) -> int:
+    """Render scenes ``seed .. seed+count-1`` in parallel worker processes (each imports bpy)."""
+    import os
+    import subprocess
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    from tqdm import tqdm
+
+    from prosplat.data.splits import family_for_seed, split_of
+
+    if args.count < 1 or args.workers < 1 or args.size < 8 or args.samples < 1:
+        print(
+            "prosplat scenes render: --count, --workers, --samples must be >= 1 and --size >= 8",
+            file=sys.stderr,
+        )
+        return 2
+    for s in (args.seed, args.seed + args.count - 1):
+        split_of(s)  # raises with the valid range for seeds outside every split
+    jobs = []
+    for seed in range(args.seed, args.seed + args.count):
+        name = args.scene or family_for_seed(seed)
+        if (args.out / f"{name}_{seed:06d}").is_dir():
+            continue  # complete: folders only appear when finished
+        jobs.append((name, seed))
+    skipped = args.count - len(jobs)
+    if skipped:
+        print(f"{skipped} of {args.count} scenes already rendered in {args.out}; skipping them")
+    if not jobs:
+        return 0
+    threads = max(1, (os.cpu_count() or 1) // args.workers)
+
+    def run(name: str, seed: int) -> tuple[str, int, subprocess.CompletedProcess]:
+        cmd = [
+            sys.executable,
+            "-m",
+            "scenes.render",
+            "--name",
+            name,
+            "--seed",
+            str(seed),
+            "--out",
+            str(args.out),
+            "--size",
+            str(args.size),
+            "--inputs",
+            str(args.inputs),
+            "--targets",
+            str(args.targets),
+            "--samples",
+            str(args.samples),
+            "--threads",
+            str(threads),
+        ] + (["--denoise"] if args.denoise else [])
+        return name, seed, subprocess.run(cmd, capture_output=True, text=True)
+
+    failures = []
+    with ThreadPoolExecutor(args.workers) as pool:
+        futures = [pool.submit(run, name, seed) for name, seed in jobs]
+        for fut in tqdm(
+            as_completed(futures), total=len(futures), desc="rendering scenes", unit="scene"
+        ):
+            name, seed, res = fut.result()
+            if res.returncode != 0:
+                failures.append((name, seed, res.stderr.strip().splitlines()[-15:]))
+    for name, seed, tail in failures:
+        print(f"scene {name} seed {seed} failed:\n  " + "\n  ".join(tail), file=sys.stderr)
+    print(
+        f"rendered {len(jobs) - len(failures)} scenes into {args.out.resolve()}"
+        + (f"; {len(failures)} failed (re-run the same command to retry them)" if failures else "")
+    )
+    return 1 if failures else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="prosplat", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -62,6 +135,40 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--views", type=int, default=24, help="number of orbit views (default 24)")
     demo.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
     demo.set_defaults(func=cmd_demo)
+
+    scenes = sub.add_parser("scenes", help="Blender-rendered synthetic scenes (needs bpy)")
+    scenes_sub = scenes.add_subparsers(dest="scenes_command", required=True)
+    rend = scenes_sub.add_parser(
+        "render",
+        help="render seeded scenes with Cycles into scene folders",
+        description="Render scenes seed..seed+count-1 with Cycles on the CPU, each into "
+        "OUT/NAME_SEED/ (transforms.json, images/, depth/). Finished scenes are "
+        "skipped, so an interrupted run can simply be re-run. Seeds decide the "
+        "split: train 0-899999, val 900000-949999, test 950000-999999.",
+    )
+    rend.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    rend.add_argument("--count", type=int, default=1, help="number of scenes (default 1)")
+    rend.add_argument("--out", type=Path, required=True, help="dataset folder")
+    rend.add_argument("--size", type=int, default=128, help="square image size in px (default 128)")
+    rend.add_argument(
+        "--inputs", type=int, default=4, help="input views per scene, 2-6 (default 4)"
+    )
+    rend.add_argument("--targets", type=int, default=8, help="target views per scene (default 8)")
+    rend.add_argument(
+        "--samples", type=int, default=32, help="Cycles samples per pixel (default 32)"
+    )
+    rend.add_argument("--denoise", action="store_true", help="run Cycles' denoiser (default off)")
+    rend.add_argument(
+        "--workers", type=int, default=2, help="parallel Blender processes (default 2)"
+    )
+    rend.add_argument(
+        "--scene",
+        default=None,
+        help="family (room, tabletop, open) or hard scene (textureless, "
+        "thin_structures, repeated_pattern, specular, near_far, "
+        "inside_outside); default: the seed's family",
+    )
+    rend.set_defaults(func=cmd_scenes_render)
     return parser
 
 

@@ -88,3 +88,47 @@ def write_image(path: str | os.PathLike, image: Tensor, overwrite: bool = False)
     out.close()
     os.replace(tmp, path)
     return path
+
+
+def read_depth(path: str | os.PathLike) -> Tensor:
+    """Read a single-channel depth EXR as [H, W] float32 (scene units; 0 = no surface)."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"depth map not found: {path}")
+    buf = oiio.ImageBuf(str(path))
+    if buf.has_error:
+        raise ValueError(f"cannot read depth map {path}: {buf.geterror()}")
+    arr = buf.get_pixels(oiio.FLOAT)
+    if arr is None or arr.ndim != 3:
+        raise ValueError(f"cannot decode depth map {path}: {buf.geterror()}")
+    depth = torch.from_numpy(np.ascontiguousarray(arr[..., 0], dtype=np.float32))
+    if not torch.isfinite(depth).all() or (depth < 0).any():
+        raise ValueError(
+            f"depth map {path} has negative or non-finite values; 0 marks 'no surface'"
+        )
+    return depth
+
+
+def write_depth(path: str | os.PathLike, depth: Tensor, overwrite: bool = False) -> Path:
+    """Write [H, W] depth as a single-channel float32 EXR (zip compression), atomically."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+    if depth.ndim != 2:
+        raise ValueError(f"write_depth expects [H,W], got {list(depth.shape)}")
+    arr = np.ascontiguousarray(depth.detach().float().cpu().numpy()[..., None])
+    spec = oiio.ImageSpec(arr.shape[1], arr.shape[0], 1, oiio.FLOAT)
+    spec.channelnames = ("Z",)
+    spec.attribute("compression", "zip")
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    buf = oiio.ImageBuf(spec)
+    buf.set_pixels(oiio.ROI(), arr)
+    if not buf.write(str(tmp)):
+        tmp.unlink(missing_ok=True)
+        raise OSError(f"writing {path} failed: {buf.geterror()}")
+    os.replace(tmp, path)
+    return path

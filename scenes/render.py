@@ -1,0 +1,209 @@
+"""Render one seeded scene with Cycles into a scene folder (bpy).
+
+Run as ``python -m scenes.render --name room --seed 3 --out DIR ...`` (one scene per
+process: bpy state is global, and a crash must not take other scenes with it);
+``prosplat scenes render`` runs many of these in parallel. The folder is written under a
+hidden temporary name and renamed into place only when complete, so a scene folder that
+exists is a finished one and an interrupted run leaves nothing half-made behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import bpy
+import numpy as np
+import torch
+from mathutils import Matrix
+
+from prosplat.camera import Camera
+from prosplat.convert.nerfstudio import Frame, write_transforms
+from prosplat.data.overlap import overlap_matrix
+from prosplat.data.rigs import choose_rig
+from prosplat.data.splits import split_of
+from prosplat.image_io import write_depth
+from scenes.builders import SceneInfo, build_scene
+
+BACKGROUND_DEPTH = 1e9  # Cycles writes ~1e10 where a ray hits nothing; we store 0 there
+SKY_UP = (0.0, 0.0, 1.0)
+
+
+def scene_folder_name(name: str, seed: int) -> str:
+    return f"{name}_{seed:06d}"
+
+
+def configure_render(size: int, samples: int, denoise: bool, seed: int, threads: int) -> None:
+    """Cycles on the CPU, plain sRGB output (Standard view transform, no dither), Z pass."""
+    sc = bpy.context.scene
+    sc.render.engine = "CYCLES"
+    sc.cycles.device = "CPU"
+    sc.cycles.samples = samples
+    sc.cycles.use_adaptive_sampling = False  # a fixed sample count: same seed, same pixels
+    sc.cycles.use_denoising = denoise
+    sc.cycles.seed = seed
+    sc.cycles.pixel_filter_type = "BOX"  # each pixel integrates exactly its own footprint
+    sc.cycles.filter_width = 1.0
+    sc.render.resolution_x = sc.render.resolution_y = size
+    sc.render.resolution_percentage = 100
+    sc.render.film_transparent = False
+    sc.render.dither_intensity = 0.0
+    sc.render.threads_mode = "FIXED"
+    sc.render.threads = max(1, threads)
+    sc.display_settings.display_device = "sRGB"
+    sc.view_settings.view_transform = "Standard"
+    sc.view_settings.look = "None"
+    sc.view_settings.exposure = 0.0
+    sc.view_settings.gamma = 1.0
+    sc.view_layers[0].use_pass_z = True
+
+
+def _place_camera(cam_obj, camera: Camera) -> None:
+    p = camera.to_blender()
+    cam_obj.matrix_world = Matrix(p.matrix_world.tolist())
+    cam_obj.data.lens = p.lens
+    cam_obj.data.sensor_width = p.sensor_width
+    cam_obj.data.sensor_height = p.sensor_height
+    cam_obj.data.sensor_fit = p.sensor_fit
+    cam_obj.data.shift_x = p.shift_x
+    cam_obj.data.shift_y = p.shift_y
+    cam_obj.data.clip_start = 0.01
+    cam_obj.data.clip_end = 10_000.0
+
+
+def _render_view(png: Path, exr_tmp: Path) -> np.ndarray:
+    """Render the scene camera: PNG via the view transform, depth from the multilayer EXR."""
+    import OpenImageIO as oiio
+
+    sc = bpy.context.scene
+    settings = sc.render.image_settings
+    settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    sc.render.filepath = str(exr_tmp)
+    bpy.ops.render.render(write_still=True)
+    settings.media_type = "IMAGE"
+    settings.file_format = "PNG"
+    settings.color_mode = "RGB"
+    settings.color_depth = "8"
+    bpy.data.images["Render Result"].save_render(filepath=str(png), scene=sc)
+    inp = oiio.ImageInput.open(str(exr_tmp))
+    if inp is None:
+        raise RuntimeError(f"Blender wrote no readable EXR at {exr_tmp}: {oiio.geterror()}")
+    try:
+        sub = 0
+        while inp.seek_subimage(sub, 0):
+            names = list(inp.spec().channelnames)
+            if any(n.endswith("Depth.Z") for n in names):
+                px = inp.read_image(sub, 0, 0, len(names), oiio.FLOAT)
+                depth = np.asarray(px)[..., [i for i, n in enumerate(names) if n.endswith("Depth.Z")][0]]
+                break
+            sub += 1
+        else:
+            raise RuntimeError(f"{exr_tmp} has no Depth pass; is view_layer.use_pass_z on?")
+    finally:
+        inp.close()
+    exr_tmp.unlink()
+    return np.where(depth >= BACKGROUND_DEPTH, 0.0, depth).astype(np.float32)
+
+
+def render_scene(
+    name: str, seed: int, out: Path, size: int = 128, n_inputs: int = 4, n_targets: int = 8,
+    samples: int = 32, denoise: bool = False, threads: int | None = None, lens_mm: float | None = None,
+) -> Path:
+    """Build and render scene ``name`` (a family or a hard scene) for ``seed`` into ``out``.
+
+    Returns the scene folder. Skips (returns at once) when the folder already exists.
+    """
+    final = out / scene_folder_name(name, seed)
+    if final.exists():
+        return final
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / f".{final.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    (tmp / "images").mkdir(parents=True)
+    (tmp / "depth").mkdir()
+    t0 = time.perf_counter()
+    try:
+        info: SceneInfo = build_scene(name, seed)
+        rig = choose_rig(info.trajectory, n_inputs, n_targets, seed)
+        configure_render(size, samples, denoise, seed, threads or os.cpu_count() or 1)
+        sc = bpy.context.scene
+        cam_obj = bpy.data.objects.new("prosplat_camera", bpy.data.cameras.new("prosplat_camera"))
+        sc.collection.objects.link(cam_obj)
+        sc.camera = cam_obj
+        fx = (lens_mm or info.lens_mm) / 36.0 * size
+        views = [(i, "input", None) for i in rig.inputs]
+        views += [(i, "target", k) for i, k in zip(rig.targets, rig.target_kinds)]
+        views.sort()
+        frames, cameras, depths = [], [], []
+        for v, (traj_index, split, kind) in enumerate(views):
+            eye, look = info.trajectory[traj_index]
+            camera = Camera.look_at(eye, look, SKY_UP, fx, size, size)
+            _place_camera(cam_obj, camera)
+            depth = _render_view(tmp / "images" / f"{v:03d}.png", tmp / f"depth_{v:03d}_ml.exr")
+            write_depth(tmp / "depth" / f"{v:03d}.exr", torch.from_numpy(depth))
+            valid = depth[depth > 0]
+            near = float(valid.min()) if valid.size else 0.1
+            far = float(valid.max()) if valid.size else 100.0
+            extra = {"split": split, "depth_file_path": f"depth/{v:03d}.exr", "near": near,
+                     "far": far, "trajectory_index": traj_index}
+            if kind is not None:
+                extra["target_kind"] = kind
+            frames.append(Frame(camera, f"images/{v:03d}.png", extra))
+            cameras.append(camera)
+            depths.append(torch.from_numpy(depth))
+        inputs = [i for i, f in enumerate(frames) if f.extra["split"] == "input"]
+        overlap = overlap_matrix([cameras[i] for i in inputs], [depths[i] for i in inputs])
+        off_diag = overlap[~torch.eye(len(inputs), dtype=torch.bool)]
+        meta = {
+            "near": min(f.extra["near"] for f in frames),
+            "far": max(f.extra["far"] for f in frames),
+            "seed": seed,
+            "family": info.family,
+            "name": name,
+            "tags": list(info.tags),
+            "split_set": split_of(seed),
+            "bounds_min": list(info.bounds_min),
+            "bounds_max": list(info.bounds_max),
+            "input_overlap": overlap.tolist(),
+            "mean_input_overlap": float(off_diag.mean()),
+            "renderer": {
+                "blender": bpy.app.version_string, "engine": "CYCLES", "device": "CPU",
+                "samples": samples, "denoise": denoise, "pixel_filter": "BOX 1px",
+                "view_transform": "Standard", "seconds": round(time.perf_counter() - t0, 2),
+            },
+        }
+        write_transforms(tmp / "transforms.json", frames, meta)
+        os.rename(tmp, final)  # atomic on one filesystem: the folder appears complete or not at all
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="Render one seeded scene with Cycles (bpy).")
+    ap.add_argument("--name", required=True, help="family (room, tabletop, open) or hard scene name")
+    ap.add_argument("--seed", type=int, required=True)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--inputs", type=int, default=4)
+    ap.add_argument("--targets", type=int, default=8)
+    ap.add_argument("--samples", type=int, default=32)
+    ap.add_argument("--denoise", action="store_true")
+    ap.add_argument("--threads", type=int, default=None)
+    args = ap.parse_args(argv)
+    folder = render_scene(args.name, args.seed, args.out, args.size, args.inputs, args.targets,
+                          args.samples, args.denoise, args.threads)
+    print(json.dumps({"folder": str(folder)}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
