@@ -47,8 +47,7 @@ def configure_render(size: int, samples: int, denoise: bool, seed: int, threads:
     sc.cycles.use_adaptive_sampling = False  # a fixed sample count: same seed, same pixels
     sc.cycles.use_denoising = denoise
     sc.cycles.seed = seed
-    sc.cycles.pixel_filter_type = "BOX"  # each pixel integrates exactly its own footprint
-    sc.cycles.filter_width = 1.0
+    sc.cycles.pixel_filter_type = "BOX"  # width set per pass in _render_view
     sc.render.resolution_x = sc.render.resolution_y = size
     sc.render.resolution_percentage = 100
     sc.render.film_transparent = False
@@ -76,22 +75,33 @@ def _place_camera(cam_obj, camera: Camera) -> None:
     cam_obj.data.clip_end = 10_000.0
 
 
-def _render_view(png: Path, exr_tmp: Path) -> np.ndarray:
-    """Render the scene camera: PNG via the view transform, depth from the multilayer EXR."""
+def _render_view(png: Path, exr_tmp: Path, samples: int, denoise: bool) -> np.ndarray:
+    """Render the scene camera twice: colour, then depth.
+
+    Colour: ``samples`` per pixel through a 1-px box filter (each pixel integrates its own
+    footprint), saved as PNG through the Standard view transform. Depth: Cycles' Z pass takes
+    one sample per pixel, wherever the filter put it; a second 1-sample render with a
+    0.01-px filter puts it at the pixel centre, so the depth is exact where our cameras
+    (and rasterizer) evaluate a pixel, not jittered by up to half a pixel.
+    """
     import OpenImageIO as oiio
 
     sc = bpy.context.scene
     settings = sc.render.image_settings
-    settings.media_type = "MULTI_LAYER_IMAGE"
-    settings.file_format = "OPEN_EXR_MULTILAYER"
-    settings.color_depth = "32"
-    sc.render.filepath = str(exr_tmp)
-    bpy.ops.render.render(write_still=True)
+    sc.cycles.samples, sc.cycles.use_denoising, sc.cycles.filter_width = samples, denoise, 1.0
+    bpy.ops.render.render()
     settings.media_type = "IMAGE"
     settings.file_format = "PNG"
     settings.color_mode = "RGB"
     settings.color_depth = "8"
     bpy.data.images["Render Result"].save_render(filepath=str(png), scene=sc)
+
+    sc.cycles.samples, sc.cycles.use_denoising, sc.cycles.filter_width = 1, False, 0.01
+    settings.media_type = "MULTI_LAYER_IMAGE"
+    settings.file_format = "OPEN_EXR_MULTILAYER"
+    settings.color_depth = "32"
+    sc.render.filepath = str(exr_tmp)
+    bpy.ops.render.render(write_still=True)
     inp = oiio.ImageInput.open(str(exr_tmp))
     if inp is None:
         raise RuntimeError(f"Blender wrote no readable EXR at {exr_tmp}: {oiio.geterror()}")
@@ -101,7 +111,8 @@ def _render_view(png: Path, exr_tmp: Path) -> np.ndarray:
             names = list(inp.spec().channelnames)
             if any(n.endswith("Depth.Z") for n in names):
                 px = inp.read_image(sub, 0, 0, len(names), oiio.FLOAT)
-                depth = np.asarray(px)[..., [i for i, n in enumerate(names) if n.endswith("Depth.Z")][0]]
+                z_channel = [i for i, n in enumerate(names) if n.endswith("Depth.Z")][0]
+                depth = np.asarray(px)[..., z_channel]
                 break
             sub += 1
         else:
@@ -112,9 +123,29 @@ def _render_view(png: Path, exr_tmp: Path) -> np.ndarray:
     return np.where(depth >= BACKGROUND_DEPTH, 0.0, depth).astype(np.float32)
 
 
+def _remove_stale_partials(out: Path, name: str) -> None:
+    """Delete leftovers of this scene from runs that were killed (their process is gone)."""
+    for leftover in out.glob(f".{name}.partial-*"):
+        try:
+            pid = int(leftover.name.rsplit("-", 1)[1])
+            os.kill(pid, 0)  # still running: another renderer owns it
+        except (ValueError, ProcessLookupError):
+            shutil.rmtree(leftover, ignore_errors=True)
+        except PermissionError:
+            pass
+
+
 def render_scene(
-    name: str, seed: int, out: Path, size: int = 128, n_inputs: int = 4, n_targets: int = 8,
-    samples: int = 32, denoise: bool = False, threads: int | None = None, lens_mm: float | None = None,
+    name: str,
+    seed: int,
+    out: Path,
+    size: int = 128,
+    n_inputs: int = 4,
+    n_targets: int = 8,
+    samples: int = 32,
+    denoise: bool = False,
+    threads: int | None = None,
+    lens_mm: float | None = None,
 ) -> Path:
     """Build and render scene ``name`` (a family or a hard scene) for ``seed`` into ``out``.
 
@@ -124,8 +155,8 @@ def render_scene(
     if final.exists():
         return final
     out.mkdir(parents=True, exist_ok=True)
+    _remove_stale_partials(out, final.name)
     tmp = out / f".{final.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
     (tmp / "images").mkdir(parents=True)
     (tmp / "depth").mkdir()
     t0 = time.perf_counter()
@@ -146,13 +177,20 @@ def render_scene(
             eye, look = info.trajectory[traj_index]
             camera = Camera.look_at(eye, look, SKY_UP, fx, size, size)
             _place_camera(cam_obj, camera)
-            depth = _render_view(tmp / "images" / f"{v:03d}.png", tmp / f"depth_{v:03d}_ml.exr")
+            depth = _render_view(
+                tmp / "images" / f"{v:03d}.png", tmp / f"depth_{v:03d}_ml.exr", samples, denoise
+            )
             write_depth(tmp / "depth" / f"{v:03d}.exr", torch.from_numpy(depth))
             valid = depth[depth > 0]
             near = float(valid.min()) if valid.size else 0.1
             far = float(valid.max()) if valid.size else 100.0
-            extra = {"split": split, "depth_file_path": f"depth/{v:03d}.exr", "near": near,
-                     "far": far, "trajectory_index": traj_index}
+            extra = {
+                "split": split,
+                "depth_file_path": f"depth/{v:03d}.exr",
+                "near": near,
+                "far": far,
+                "trajectory_index": traj_index,
+            }
             if kind is not None:
                 extra["target_kind"] = kind
             frames.append(Frame(camera, f"images/{v:03d}.png", extra))
@@ -174,9 +212,14 @@ def render_scene(
             "input_overlap": overlap.tolist(),
             "mean_input_overlap": float(off_diag.mean()),
             "renderer": {
-                "blender": bpy.app.version_string, "engine": "CYCLES", "device": "CPU",
-                "samples": samples, "denoise": denoise, "pixel_filter": "BOX 1px",
-                "view_transform": "Standard", "seconds": round(time.perf_counter() - t0, 2),
+                "blender": bpy.app.version_string,
+                "engine": "CYCLES",
+                "device": "CPU",
+                "samples": samples,
+                "denoise": denoise,
+                "pixel_filter": "BOX 1px (colour), 0.01px (depth)",
+                "view_transform": "Standard",
+                "seconds": round(time.perf_counter() - t0, 2),
             },
         }
         write_transforms(tmp / "transforms.json", frames, meta)
@@ -189,7 +232,9 @@ def render_scene(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Render one seeded scene with Cycles (bpy).")
-    ap.add_argument("--name", required=True, help="family (room, tabletop, open) or hard scene name")
+    ap.add_argument(
+        "--name", required=True, help="family (room, tabletop, open) or hard scene name"
+    )
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--size", type=int, default=128)
@@ -199,8 +244,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--denoise", action="store_true")
     ap.add_argument("--threads", type=int, default=None)
     args = ap.parse_args(argv)
-    folder = render_scene(args.name, args.seed, args.out, args.size, args.inputs, args.targets,
-                          args.samples, args.denoise, args.threads)
+    folder = render_scene(
+        args.name,
+        args.seed,
+        args.out,
+        args.size,
+        args.inputs,
+        args.targets,
+        args.samples,
+        args.denoise,
+        args.threads,
+    )
     print(json.dumps({"folder": str(folder)}))
     return 0
 
