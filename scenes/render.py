@@ -162,6 +162,7 @@ def render_scene(
     t0 = time.perf_counter()
     try:
         info: SceneInfo = build_scene(name, seed)
+        build_seconds = time.perf_counter() - t0
         rig = choose_rig(info.trajectory, n_inputs, n_targets, seed)
         configure_render(size, samples, denoise, seed, threads or os.cpu_count() or 1)
         sc = bpy.context.scene
@@ -172,15 +173,17 @@ def render_scene(
         views = [(i, "input", None) for i in rig.inputs]
         views += [(i, "target", k) for i, k in zip(rig.targets, rig.target_kinds)]
         views.sort()
-        frames, cameras, depths = [], [], []
+        frames, cameras, depths, view_seconds = [], [], [], []
         for v, (traj_index, split, kind) in enumerate(views):
             eye, look = info.trajectory[traj_index]
             camera = Camera.look_at(eye, look, SKY_UP, fx, size, size)
             _place_camera(cam_obj, camera)
+            t_view = time.perf_counter()
             depth = _render_view(
                 tmp / "images" / f"{v:03d}.png", tmp / f"depth_{v:03d}_ml.exr", samples, denoise
             )
             write_depth(tmp / "depth" / f"{v:03d}.exr", torch.from_numpy(depth))
+            view_seconds.append(round(time.perf_counter() - t_view, 3))
             valid = depth[depth > 0]
             near = float(valid.min()) if valid.size else 0.1
             far = float(valid.max()) if valid.size else 100.0
@@ -220,6 +223,8 @@ def render_scene(
                 "pixel_filter": "BOX 1px (colour), 0.01px (depth)",
                 "view_transform": "Standard",
                 "seconds": round(time.perf_counter() - t0, 2),
+                "build_seconds": round(build_seconds, 3),
+                "view_seconds": view_seconds,
             },
         }
         write_transforms(tmp / "transforms.json", frames, meta)
