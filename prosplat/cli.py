@@ -119,6 +119,34 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
     return 1 if failures else 0
 
 
+def cmd_scenes_list(args: argparse.Namespace) -> int:
+    """One line per scene folder: split, family, tags, views and input overlap (for binning)."""
+    import json
+
+    from prosplat.data.dataset import find_scenes
+
+    folders = find_scenes(args.out)
+    if not folders:
+        print(f"no scene folders in {args.out}", file=sys.stderr)
+        return 1
+    print(
+        "| scene | split | family | tags | inputs | targets (interp/extrap) | mean input overlap | near | far |"
+    )
+    print("|---|---|---|---|---:|---|---:|---:|---:|")
+    for folder in folders:
+        meta = json.loads((folder / "transforms.json").read_text())
+        frames = meta["frames"]
+        n_in = sum(f.get("split") == "input" for f in frames)
+        kinds = [f.get("target_kind") for f in frames if f.get("split") == "target"]
+        print(
+            f"| {folder.name} | {meta.get('split_set', '?')} | {meta.get('family', '?')} | "
+            f"{','.join(meta.get('tags', [])) or '-'} | {n_in} | {len(kinds)} "
+            f"({kinds.count('interpolation')}/{kinds.count('extrapolation')}) | "
+            f"{meta.get('mean_input_overlap', float('nan')):.2f} | {meta['near']:.3g} | {meta['far']:.3g} |"
+        )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="prosplat", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -169,6 +197,15 @@ def build_parser() -> argparse.ArgumentParser:
         "inside_outside); default: the seed's family",
     )
     rend.set_defaults(func=cmd_scenes_render)
+    lst = scenes_sub.add_parser(
+        "list",
+        help="list rendered scenes with their split, family and input overlap",
+        description="Print a Markdown table of the scene folders under --out: split, family, "
+        "hard-scene tags, view counts and the mean overlap between input views "
+        "(to bin benchmarks by baseline).",
+    )
+    lst.add_argument("--out", type=Path, required=True, help="dataset folder")
+    lst.set_defaults(func=cmd_scenes_list)
     return parser
 
 

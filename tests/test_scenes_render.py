@@ -203,3 +203,17 @@ def test_cli_renders_in_parallel_and_skips_finished_scenes(tmp_path):
         "room_000000",
         "tabletop_000001",
     ]
+
+
+def test_scenes_list_reports_split_family_and_overlap(tabletop):
+    out = tabletop[0].parent
+    res = subprocess.run(
+        [sys.executable, "-m", "prosplat", "scenes", "list", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert res.returncode == 0, res.stderr
+    row = next(line for line in res.stdout.splitlines() if line.startswith("| tabletop_000005"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    overlap = load_scene(tabletop[0]).meta["mean_input_overlap"]
+    assert cells[1:5] == ["train", "tabletop", "-", "2"] and float(cells[6]) == round(overlap, 2)
