@@ -48,6 +48,19 @@ def _finish(
     me = bpy.data.meshes.new(name)
     bm.to_mesh(me)
     bm.free()
+    return mesh_object(name, me, material, location, rotation, smooth, role)
+
+
+def mesh_object(
+    name: str,
+    me: bpy.types.Mesh,
+    material: bpy.types.Material | None,
+    location: Vec3,
+    rotation: Vec3,
+    smooth: bool,
+    role: str,
+) -> bpy.types.Object:
+    """An object for mesh ``me``: shading, material, placement and role tag, linked."""
     if smooth:
         me.shade_smooth()
     if material is not None:

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 import bpy
 import numpy as np
 
-from .primitives import Vec3, link
+from .primitives import Vec3, link, mesh_object
 
 
 def from_pydata(
@@ -26,14 +26,7 @@ def from_pydata(
     me = bpy.data.meshes.new(name)
     me.from_pydata([tuple(map(float, v)) for v in verts], [], [tuple(f) for f in faces])
     me.validate()
-    if smooth:
-        me.shade_smooth()
-    if material is not None:
-        me.materials.append(material)
-    obj = bpy.data.objects.new(name, me)
-    obj.location = tuple(location)
-    obj.rotation_euler = tuple(rotation)
-    return link(obj, role)
+    return mesh_object(name, me, material, location, rotation, smooth, role)
 
 
 def torus(
