@@ -5,6 +5,7 @@ The library never imports ``bpy``; the Blender add-on (``addon/``) is a thin lay
 
 from prosplat.camera import Camera, CameraBatch, stack_cameras
 from prosplat.gaussians import Gaussians
+from prosplat.pipeline import ProSplat
 from prosplat.ply import read_ply, write_ply
 from prosplat.render import RenderOutput, render
 
@@ -12,6 +13,7 @@ __all__ = [
     "Camera",
     "CameraBatch",
     "Gaussians",
+    "ProSplat",
     "RenderOutput",
     "read_ply",
     "render",

@@ -147,6 +147,17 @@ def cmd_scenes_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_generator(args: argparse.Namespace) -> int:
+    from dataclasses import fields
+
+    from prosplat.train.generator import TrainConfig, train
+
+    cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
+    path = train(cfg)
+    print(f"checkpoint: {path.resolve()}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="prosplat", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -206,6 +217,53 @@ def build_parser() -> argparse.ArgumentParser:
     )
     lst.add_argument("--out", type=Path, required=True, help="dataset folder")
     lst.set_defaults(func=cmd_scenes_list)
+
+    train = sub.add_parser("train", help="train models on rendered scenes")
+    train_sub = train.add_subparsers(dest="train_command", required=True)
+    tg = train_sub.add_parser(
+        "generator",
+        help="train the stage-1 generator",
+        description="Train the feed-forward generator on scene folders (prosplat scenes render). "
+        "Re-running with the same --out resumes from its last checkpoint. One GPU or "
+        "the CPU: run as is; several GPUs: torchrun --nproc_per_node K -m prosplat "
+        "train generator ...",
+    )
+    from prosplat.train.generator import TrainConfig
+
+    defaults = TrainConfig(data="", out="")
+    tg.add_argument("--data", required=True, help="training dataset folder")
+    tg.add_argument("--out", required=True, help="run folder (checkpoints, log.jsonl)")
+    tg.add_argument("--val", default=None, help="validation dataset folder (optional)")
+    tg.add_argument("--config", default=defaults.config, choices=["tiny", "base"])
+    for name in (
+        "steps",
+        "batch",
+        "inputs",
+        "targets",
+        "warmup",
+        "log_every",
+        "val_every",
+        "val_scenes",
+        "save_every",
+        "seed",
+    ):
+        tg.add_argument(
+            f"--{name.replace('_', '-')}",
+            dest=name,
+            type=int,
+            default=getattr(defaults, name),
+            help=f"(default {getattr(defaults, name)})",
+        )
+    for name in ("lr", "weight_decay", "lpips_weight", "ssim_weight", "depth_weight", "grad_clip"):
+        tg.add_argument(
+            f"--{name.replace('_', '-')}",
+            dest=name,
+            type=float,
+            default=getattr(defaults, name),
+            help=f"(default {getattr(defaults, name)})",
+        )
+    tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
+    tg.set_defaults(func=cmd_train_generator)
     return parser
 
 

@@ -6,9 +6,9 @@ import json
 
 import pytest
 import torch
+from synthetic_scenes import write_synthetic_scene
 
-from prosplat import Camera, render
-from prosplat.convert.nerfstudio import Frame, write_transforms
+from prosplat import Camera
 from prosplat.data import (
     SceneDataset,
     choose_rig,
@@ -19,8 +19,8 @@ from prosplat.data import (
     split_of,
 )
 from prosplat.data.splits import family_for_seed
-from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
-from prosplat.image_io import write_depth, write_image
+from prosplat.demo_scene import raycast
+from prosplat.image_io import write_depth, write_image  # noqa: F401
 
 
 def line_trajectory(n: int = 60):
@@ -82,32 +82,6 @@ def test_covisibility_of_shifted_views_of_a_plane():
     assert covisibility(a, sky, c, dc) == 0.0
     m = overlap_matrix([a, b, c], [da, db, dc])
     assert torch.equal(m, m.T) and m[0, 1] == 1 and m[0, 2] == pytest.approx(0.5, abs=1 / 32)
-
-
-def write_synthetic_scene(folder, size=32, n_views=5):
-    """A scene folder in the renderer's format, made with the analytic demo scene."""
-    cams = orbit_cameras(n_views, size, size)
-    g = pixel_aligned_gaussians(cams)
-    (folder / "images").mkdir(parents=True)
-    (folder / "depth").mkdir()
-    frames = []
-    for v, cam in enumerate(cams):
-        write_image(folder / "images" / f"{v:03d}.png", render(g, cam).rgb)
-        depth = raycast(cam)[0].float()
-        write_depth(folder / "depth" / f"{v:03d}.exr", depth)
-        split = "input" if v % 2 == 0 else "target"
-        extra = {
-            "split": split,
-            "depth_file_path": f"depth/{v:03d}.exr",
-            "near": float(depth.min()),
-            "far": float(depth.max()),
-        }
-        if split == "target":
-            extra["target_kind"] = "interpolation"
-        frames.append(Frame(cam, f"images/{v:03d}.png", extra))
-    meta = {"near": 0.5, "far": 10.0, "seed": 1, "family": "tabletop"}
-    write_transforms(folder / "transforms.json", frames, meta)
-    return cams
 
 
 def test_load_scene_round_trip(tmp_path):

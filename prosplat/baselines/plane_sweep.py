@@ -1,0 +1,277 @@
+"""Classical plane-sweep stereo turned into pixel-aligned Gaussians: the no-learning baseline.
+
+For every reference view, fronto-parallel planes at ``n_depths`` depths (uniform in inverse
+depth, so the candidates are evenly spaced in disparity) are swept through the scene; the
+other views are warped onto each plane with ``grid_sample`` and compared with the reference
+by zero-mean normalised cross-correlation (ZNCC) over a 5x5 window. ZNCC is invariant to
+gain and offset between views, so it needs no photometric calibration, and it is zero (not
+random) on flat patches, which keeps textureless regions at low confidence. Because it
+ignores absolute colour, the cost adds ``COLOR_WEIGHT`` x the mean absolute difference of the
+two windows' mean colours (on the demo scene this stops beige wall checks matching blue floor
+checks). The winner takes all, a parabola through the best cost and its two neighbours gives a sub-candidate
+depth, and the margin to the best non-adjacent candidate gives the confidence.
+
+Each pixel then becomes one Gaussian laid out exactly like the feed-forward generator's
+output (view-major, then row-major), so the two can be compared Gaussian for Gaussian and
+pruned with :func:`prosplat.budget.prune_gaussians`:
+
+- mean: the pixel centre unprojected at its depth;
+- colour: the pixel's colour as the DC SH coefficient (degree 0);
+- scale: ``LATERAL_SCALE`` (0.7) pixel footprints across the ray, so that neighbours overlap
+  into a hole-free surface, and ``RAY_SCALE`` (0.1) footprints along it (a surfel facing its
+  camera: thin so that depth errors do not smear colour along the ray);
+- rotation: the Gaussian's thin axis along the pixel's ray (not just the optical axis);
+- opacity: ``min_opacity + (max_opacity - min_opacity) * confidence``, so an unreliable depth
+  still paints its colour but is easy to overrule (or prune).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from prosplat.camera import Camera
+from prosplat.convert.colmap import rotmat_to_qvec
+from prosplat.gaussians import Gaussians, rgb_to_sh0
+
+__all__ = ["plane_sweep_depths", "plane_sweep_gaussians", "gaussians_from_depths"]
+
+LATERAL_SCALE = 0.7  # σ across the ray, in pixel footprints (depth / fx)
+RAY_SCALE = 0.1  # σ along the ray, in pixel footprints
+WINDOW = 5  # ZNCC window (pixels)
+CONF_TAU = 0.1  # cost margin (in 1 - ZNCC units) at which confidence reaches 1 - 1/e
+COLOR_WEIGHT = 1.0  # weight of the window-mean colour difference added to 1 - ZNCC
+ZNCC_EPS = 1e-6  # added to var_ref * var_src: flat patches correlate to 0, not to noise
+_CHUNK_PIXELS = 1 << 21  # depth candidates are warped in chunks of about this many pixels
+
+
+def _check_inputs(images: Tensor, cameras: list[Camera], near: float, far: float) -> None:
+    if not isinstance(images, Tensor) or images.ndim != 4 or images.shape[1] != 3:
+        shape = list(images.shape) if isinstance(images, Tensor) else type(images).__name__
+        raise ValueError(f"images must be a [V, 3, H, W] tensor, got {shape}")
+    if not images.is_floating_point() or not torch.isfinite(images).all():
+        raise ValueError("images must be finite floats in [0, 1]")
+    v, _, h, w = images.shape
+    if len(cameras) != v:
+        raise ValueError(f"cameras must have one Camera per image: {len(cameras)} for {v} images")
+    for i, cam in enumerate(cameras):
+        if (cam.width, cam.height) != (w, h):
+            raise ValueError(
+                f"cameras[{i}] is {cam.width}x{cam.height} but the images are {w}x{h}; "
+                "use Camera.resized to match"
+            )
+    if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
+        raise ValueError(f"near and far must satisfy 0 < near < far, got near={near}, far={far}")
+
+
+def _depth_candidates(near: float, far: float, n: int, dtype, device) -> Tensor:
+    """[n] depths from near to far, uniform in inverse depth."""
+    t = torch.linspace(0, 1, n, dtype=torch.float64)
+    inv = 1 / near + (1 / far - 1 / near) * t
+    return (1 / inv).to(dtype=dtype, device=device)
+
+
+def _box(x: Tensor) -> Tensor:
+    """Mean over the WINDOW x WINDOW neighbourhood (border windows shrink, not zero-pad)."""
+    return F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
+
+
+def _sweep_cost(images: Tensor, cameras: list[Camera], ref: int, depths: Tensor) -> Tensor:
+    """[D, H, W] matching cost ``1 - ZNCC + COLOR_WEIGHT * |mean colour difference|``.
+
+    The cost of a candidate is the mean over the source views in which it lands inside the
+    image (in front of the camera); where none does, it is 1 (uncorrelated, no information).
+    """
+    v, _, h, w = images.shape
+    d = depths.shape[0]
+    dtype, device = images.dtype, images.device
+    cam = cameras[ref]
+    img = images[ref : ref + 1]  # [1,3,H,W]
+    mu_r = _box(img)
+    var_r = (_box(img * img) - mu_r * mu_r).sum(1)  # [1,H,W], summed over channels
+    uv = cam.pixel_centers(torch.float64).to(device)  # [H,W,2]
+    cost_sum = torch.zeros(d, h, w, dtype=dtype, device=device)
+    n_valid = torch.zeros(d, h, w, dtype=dtype, device=device)
+    chunk = max(1, _CHUNK_PIXELS // (h * w))
+    for k0 in range(0, d, chunk):
+        dk = depths[k0 : k0 + chunk].to(torch.float64)  # [C]
+        pts = cam.unproject(
+            uv[None].expand(dk.shape[0], h, w, 2), dk[:, None, None].expand(-1, h, w)
+        )
+        for s in range(v):
+            if s == ref:
+                continue
+            src = cameras[s]
+            uv_s, z_s = src.project(pts)  # [C,H,W,2], [C,H,W]
+            gx = uv_s[..., 0] / src.width * 2 - 1  # align_corners=False: centres at +0.5
+            gy = uv_s[..., 1] / src.height * 2 - 1
+            valid = (z_s > 0) & (gx.abs() <= 1) & (gy.abs() <= 1)
+            grid = torch.stack([gx, gy], -1).clamp(-2, 2).to(dtype)  # clamp keeps it finite
+            warped = F.grid_sample(
+                images[s : s + 1],
+                grid.reshape(1, -1, w, 2),
+                mode="bilinear",
+                padding_mode="border",
+                align_corners=False,
+            )  # [1,3,C*H,W]
+            warped = warped.reshape(3, -1, h, w).transpose(0, 1)  # [C,3,H,W]
+            mu_s = _box(warped)
+            var_s = (_box(warped * warped) - mu_s * mu_s).sum(1)  # [C,H,W]
+            cov = (_box(warped * img) - mu_s * mu_r).sum(1)
+            zncc = cov / torch.sqrt(var_r.clamp_min(0) * var_s.clamp_min(0) + ZNCC_EPS)
+            c = 1 - zncc.clamp(-1, 1) + COLOR_WEIGHT * (mu_s - mu_r).abs().mean(1)
+            c = c * valid
+            cost_sum[k0 : k0 + chunk] += c
+            n_valid[k0 : k0 + chunk] += valid.to(dtype)
+    return torch.where(n_valid > 0, cost_sum / n_valid.clamp_min(1), torch.ones_like(cost_sum))
+
+
+def _winner_take_all(cost: Tensor, near: float, far: float) -> tuple[Tensor, Tensor]:
+    """[D,H,W] cost -> depth [H,W] (parabola-refined in inverse depth) and confidence [H,W].
+
+    Confidence = ``(1 - exp(-margin / CONF_TAU)) * clamp(ZNCC_best, 0, 1)`` where the margin is
+    the cost gap to the best candidate that is not the winner or its neighbours: a unique,
+    well-correlated minimum scores near 1; flat (textureless) or repetitive (two minima)
+    cost curves score near 0.
+    """
+    d = cost.shape[0]
+    best_cost, k = cost.min(0)  # [H,W]
+    idx = torch.arange(d, device=cost.device)[:, None, None]
+    near_winner = (idx - k[None]).abs() <= 1
+    second = torch.where(near_winner, torch.full_like(cost, math.inf), cost).amin(0)
+    second = torch.where(torch.isfinite(second), second, best_cost)  # D <= 3
+    margin = (second - best_cost).clamp_min(0)
+    conf = (1 - torch.exp(-margin / CONF_TAU)) * (1 - best_cost).clamp(0, 1)
+
+    km, kp = (k - 1).clamp_min(0), (k + 1).clamp_max(d - 1)
+    c_m = cost.gather(0, km[None])[0]
+    c_p = cost.gather(0, kp[None])[0]
+    denom = c_m - 2 * best_cost + c_p
+    interior = (k > 0) & (k < d - 1) & (denom > 1e-9)
+    offset = torch.where(
+        interior, 0.5 * (c_m - c_p) / denom.clamp_min(1e-9), torch.zeros_like(denom)
+    )
+    pos = (k.to(cost.dtype) + offset.clamp(-0.5, 0.5)) / max(d - 1, 1)  # [0,1] in inverse depth
+    inv = 1 / near + (1 / far - 1 / near) * pos
+    return 1 / inv, conf
+
+
+@torch.no_grad()
+def plane_sweep_depths(
+    images: Tensor, cameras: list[Camera], near: float, far: float, n_depths: int = 64
+) -> tuple[Tensor, Tensor]:
+    """Depth [V,H,W] (z along each optical axis) and confidence [V,H,W] in [0, 1] per view.
+
+    A single view (nothing to match) or coincident cameras give a flat cost curve: every pixel
+    gets confidence 0 and the nearest candidate depth, which is finite.
+    """
+    _check_inputs(images, cameras, near, far)
+    if int(n_depths) != n_depths or n_depths < 2:
+        raise ValueError(f"n_depths must be an integer >= 2, got {n_depths}")
+    depths_c = _depth_candidates(near, far, int(n_depths), images.dtype, images.device)
+    out_d, out_c = [], []
+    for ref in range(images.shape[0]):
+        cost = _sweep_cost(images, cameras, ref, depths_c)
+        depth, conf = _winner_take_all(cost, near, far)
+        out_d.append(depth)
+        out_c.append(conf)
+    return torch.stack(out_d), torch.stack(out_c)
+
+
+def _quat_mul(a: Tensor, b: Tensor) -> Tensor:
+    """Hamilton product of [..., 4] (w, x, y, z) quaternions."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        dim=-1,
+    )
+
+
+def _ray_quats(camera: Camera) -> Tensor:
+    """[H*W, 4] rotations taking a Gaussian's local z axis onto each pixel's ray (world).
+
+    In camera space the shortest rotation from (0,0,1) to the unit ray r is the quaternion
+    (1 + r_z, -r_y, r_x, 0), normalised; it is never zero because r_z > 0 for a pinhole.
+    Composing with the camera-to-world rotation gives the world rotation.
+    """
+    uv = camera.pixel_centers(torch.float64).reshape(-1, 2)
+    K = camera.K.to(torch.float64)
+    y = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    x = (uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    r = F.normalize(torch.stack([x, y, torch.ones_like(x)], -1), dim=-1)
+    q_local = F.normalize(
+        torch.stack([1 + r[:, 2], -r[:, 1], r[:, 0], torch.zeros_like(x)], -1), dim=-1
+    )
+    q_c2w = rotmat_to_qvec(camera.R.to(torch.float64).T.cpu()).to(q_local.device)
+    return _quat_mul(q_c2w.expand_as(q_local), q_local)
+
+
+def gaussians_from_depths(
+    images: Tensor,
+    cameras: list[Camera],
+    depths: Tensor,
+    confidence: Tensor,
+    min_opacity: float = 0.2,
+    max_opacity: float = 0.95,
+) -> Gaussians:
+    """One surfel-like Gaussian per pixel (view-major, row-major) from depth and confidence.
+
+    Args:
+        images: [V,3,H,W] colours in [0, 1]; cameras: V cameras of size W x H.
+        depths: [V,H,W] z-depth per pixel (> 0); confidence: [V,H,W] in [0, 1].
+        min_opacity, max_opacity: opacity at confidence 0 and 1.
+    """
+    v, _, h, w = images.shape
+    means, scales, quats = [], [], []
+    for i, cam in enumerate(cameras):
+        z = depths[i].to(torch.float64)
+        uv = cam.pixel_centers(torch.float64).to(z.device)
+        means.append(cam.unproject(uv, z).reshape(-1, 3))
+        foot = (z / cam.fx).reshape(-1, 1)
+        scales.append(foot * foot.new_tensor([[LATERAL_SCALE, LATERAL_SCALE, RAY_SCALE]]))
+        quats.append(_ray_quats(cam).to(z.device))
+    dtype = images.dtype
+    colors = images.permute(0, 2, 3, 1).reshape(-1, 3).clamp(0, 1)
+    opac = min_opacity + (max_opacity - min_opacity) * confidence.reshape(-1).clamp(0, 1)
+    sh = rgb_to_sh0(colors)[:, None, :]  # [N,1,3]
+    return Gaussians(
+        torch.cat(means).to(dtype),
+        torch.cat(quats).to(dtype),
+        torch.cat(scales).to(dtype),
+        opac.to(dtype),
+        sh.to(dtype),
+    )
+
+
+@torch.no_grad()
+def plane_sweep_gaussians(
+    images: Tensor,
+    cameras: list[Camera],
+    near: float,
+    far: float,
+    n_depths: int = 64,
+) -> tuple[Gaussians, Tensor, Tensor]:
+    """Plane-sweep stereo on ``images`` and one Gaussian per input pixel.
+
+    Args:
+        images: [V,3,H,W] float images in [0, 1] (V >= 2 for any depth information).
+        cameras: V cameras, each W x H.
+        near, far: the depth range to sweep (scene units, 0 < near < far).
+        n_depths: number of depth candidates D (cost memory and time grow linearly with it).
+
+    Returns:
+        gaussians: N = V*H*W Gaussians, view-major then row-major (the generator's layout);
+        depths: [V,H,W] z-depth each pixel was unprojected at;
+        confidence: [V,H,W] in [0, 1].
+    """
+    depths, conf = plane_sweep_depths(images, cameras, near, far, n_depths)
+    return gaussians_from_depths(images, cameras, depths, conf), depths, conf

@@ -1,0 +1,138 @@
+"""Plane-sweep cost volume: how well each view's features agree with its neighbours' at each depth.
+
+For reference view i and each of D depth candidates, the pixel centres of i are lifted to that
+depth, projected into a neighbour j, and j's features are sampled there; the correlation
+``<F_i, F_j->i> / sqrt(C)`` is high at the candidate where the two views see the same surface.
+
+Conventions (DESIGN.md): OpenCV cameras, pixel (c, r) has its centre at (c + 0.5, r + 0.5).
+``grid_sample(align_corners=False)`` puts -1 and +1 at the outer *edges* of the border pixels,
+so a continuous pixel coordinate u at width w maps to ``u / w * 2 - 1`` with no half-pixel
+correction; intrinsics must be the ones of the feature resolution (:func:`scale_intrinsics`).
+
+Candidates are uniform in *inverse* depth: disparity (pixel shift between views) is linear in
+1/z, so equal inverse-depth steps are equal pixel steps, and a far plane of 1e4 costs nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+def inverse_depth_candidates(near: Tensor, far: Tensor, num: int) -> Tensor:
+    """[B] near, [B] far -> [B,D] depths, uniform in 1/z, ordered near to far."""
+    t = torch.linspace(0.0, 1.0, num, dtype=near.dtype, device=near.device)  # [D]
+    inv = (1.0 / near)[:, None] * (1 - t) + (1.0 / far)[:, None] * t  # [B,D]
+    return 1.0 / inv
+
+
+def scale_intrinsics(K: Tensor, sx: float, sy: float) -> Tensor:
+    """[...,3,3] intrinsics for an image resized by (sx, sy); exact under the +0.5 convention
+    because continuous pixel coordinates (edges at integers) scale linearly."""
+    K = K.clone()
+    K[..., 0, :] = K[..., 0, :] * sx
+    K[..., 1, :] = K[..., 1, :] * sy
+    return K
+
+
+def camera_centers(w2c: Tensor) -> Tensor:
+    """[...,4,4] world-to-camera -> [...,3] camera centres ``-R^T t``."""
+    R, t = w2c[..., :3, :3], w2c[..., :3, 3:]
+    return -(R.transpose(-1, -2) @ t)[..., 0]
+
+
+def nearest_views(w2c: Tensor, k: int) -> Tensor:
+    """[B,V,4,4] poses -> [B,V,k'] indices of each view's k' = min(k, V-1) nearest other views
+    by camera-centre distance (ties broken by index, so coincident cameras are still valid)."""
+    c = camera_centers(w2c)  # [B,V,3]
+    v = c.shape[1]
+    d = torch.cdist(c, c)  # [B,V,V]
+    eye = torch.eye(v, dtype=torch.bool, device=c.device)
+    d = d.masked_fill(eye, float("inf"))  # never match a view against itself
+    order = torch.argsort(d, dim=-1, stable=True)  # [B,V,V]
+    return order[..., : min(k, v - 1)]
+
+
+def _relative_projection(K: Tensor, w2c: Tensor, nbr: Tensor) -> tuple[Tensor, Tensor]:
+    """Per (reference i, neighbour j): A = K_j R_ji K_i^-1 [B,V,3,3] and b = K_j t_ji [B,V,3],
+    so that pixel p of view i at depth z lands at ``z A p + b`` (homogeneous) in view j."""
+    bsz = K.shape[0]
+    bidx = torch.arange(bsz, device=K.device)[:, None]  # [B,1]
+    Kj, w2c_j = K[bidx, nbr], w2c[bidx, nbr]  # [B,V,3,3], [B,V,4,4]
+    rel = w2c_j @ torch.linalg.inv(w2c)  # [B,V,4,4] camera i -> camera j
+    A = Kj @ rel[..., :3, :3] @ torch.linalg.inv(K)  # [B,V,3,3]
+    b = (Kj @ rel[..., :3, 3:])[..., 0]  # [B,V,3]
+    return A, b
+
+
+def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: int) -> Tensor:
+    """Sampling grid of neighbour ``nbr`` for every reference pixel and candidate.
+
+    Args:
+        K: [B,V,3,3] intrinsics at the h x w resolution.
+        w2c: [B,V,4,4] world-to-camera.
+        nbr: [B,V] index of the neighbour view for each reference view.
+        depths: [B,D] candidate depths (z along the reference optical axis).
+    Returns:
+        [B,V,D,h,w,2] normalised coordinates for grid_sample(align_corners=False); points
+        behind (or on) the neighbour's image plane are sent to (-2, -2), outside the image,
+        so they sample zeros.
+    """
+    A, b = _relative_projection(K, w2c, nbr)  # [B,V,3,3], [B,V,3]
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=K.dtype, device=K.device) + 0.5,
+        torch.arange(w, dtype=K.dtype, device=K.device) + 0.5,
+        indexing="ij",
+    )
+    pix = torch.stack([xs, ys, torch.ones_like(xs)], dim=0).view(3, h * w)  # [3,hw]
+    a = A @ pix  # [B,V,3,hw]
+    z = depths[:, None, :, None, None]  # [B,1,D,1,1]
+    p = z * a[:, :, None] + b[:, :, None, :, None]  # [B,V,D,3,hw]
+    depth_j = p[:, :, :, 2]  # [B,V,D,hw]
+    # In front of camera j by a relative margin; the clamp keeps far-off points finite.
+    front = depth_j > 1e-6 * depths[:, None, :, None]
+    zs = torch.where(front, depth_j, torch.ones_like(depth_j))
+    u = (p[:, :, :, 0] / zs / w * 2 - 1).clamp(-2.0, 2.0)  # [B,V,D,hw]
+    v = (p[:, :, :, 1] / zs / h * 2 - 1).clamp(-2.0, 2.0)
+    grid = torch.stack([u, v], dim=-1)  # [B,V,D,hw,2]
+    grid = torch.where(front[..., None], grid, torch.full_like(grid, -2.0))
+    return grid.view(*grid.shape[:3], h, w, 2)
+
+
+def plane_sweep_cost_volume(
+    feats: Tensor, K: Tensor, w2c: Tensor, depths: Tensor, neighbours: Tensor
+) -> Tensor:
+    """Correlation cost volume.
+
+    Args:
+        feats: [B,V,C,h,w] features of every view.
+        K: [B,V,3,3] intrinsics at the feature resolution (see :func:`scale_intrinsics`).
+        w2c: [B,V,4,4] world-to-camera.
+        depths: [B,D] candidate depths.
+        neighbours: [B,V,k] views that each view is matched against (:func:`nearest_views`).
+    Returns:
+        [B,V,D,h,w] ``<F_i, F_j->i(d)> / sqrt(C)`` averaged over the k neighbours. With zero
+        baseline every candidate warps to the same place, so the volume is flat along D
+        (uninformative but finite); out-of-view samples correlate with zeros.
+    """
+    b, v, c, h, w = feats.shape
+    d = depths.shape[1]
+    bidx = torch.arange(b, device=feats.device)[:, None]  # [B,1]
+    cost = feats.new_zeros(b, v, d, h, w)
+    k = neighbours.shape[-1]
+    for n in range(k):  # one neighbour at a time bounds memory to one warped volume
+        nbr = neighbours[..., n]  # [B,V]
+        grid = warp_grid(K, w2c, nbr, depths, h, w).to(feats.dtype)  # [B,V,D,h,w,2]
+        src = feats[bidx, nbr].reshape(b * v, c, h, w)  # [BV,C,h,w]
+        warped = F.grid_sample(
+            src,
+            grid.reshape(b * v, d * h, w, 2),
+            mode="bilinear",
+            padding_mode="zeros",
+            align_corners=False,
+        ).view(b, v, c, d, h, w)  # [B,V,C,D,h,w]
+        cost = cost + torch.einsum("bvchw,bvcdhw->bvdhw", feats, warped)
+    return cost / (k * math.sqrt(c))  # [B,V,D,h,w]

@@ -1,0 +1,205 @@
+"""The stage-1 generator: posed images -> pixel-aligned 3D Gaussians in one forward pass.
+
+DepthSplat-style (ProSplat paper, Sec. III-B): per-view CNN features refined by cross-view
+attention build a plane-sweep cost volume against each view's nearest views; a monocular branch
+adds single-view cues; a U-Net turns both into a per-pixel depth distribution, which is
+upsampled to full resolution, and an adapter turns every pixel into a Gaussian on its ray.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from prosplat.generator.adapter import GaussianAdapter
+from prosplat.generator.config import SIZE_MULTIPLE, TINY, GeneratorConfig
+from prosplat.generator.cost_volume import (
+    inverse_depth_candidates,
+    nearest_views,
+    plane_sweep_cost_volume,
+    scale_intrinsics,
+)
+from prosplat.generator.depth_head import DepthHead, DepthRefiner
+from prosplat.generator.encoder import FeatureEncoder
+from prosplat.generator.monocular import MonocularBranch
+from prosplat.generator.output import GeneratorOutput
+
+
+def _per_scene(value, b: int, name: str, like: Tensor) -> Tensor:
+    """A float, 0-d or [B] tensor -> [B] tensor of ``like``'s dtype/device."""
+    t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
+    if t.ndim == 0:
+        t = t.expand(b)
+    if tuple(t.shape) != (b,):
+        raise ValueError(
+            f"Generator: {name} must be a number or have shape [B={b}], got {list(t.shape)}"
+        )
+    return t
+
+
+class Generator(nn.Module):
+    """``forward(images [B,V,3,H,W], K [B,V,3,3], w2c [B,V,4,4], near [B], far [B])``.
+
+    Images are in [0, 1]; K in pixels of the given image size; w2c OpenCV world-to-camera;
+    near/far bound the depth of everything that should become Gaussians (scene units).
+    Any V in [2, config.max_views]; H and W multiples of 32.
+    """
+
+    def __init__(self, config: GeneratorConfig = TINY) -> None:
+        super().__init__()
+        if not isinstance(config, GeneratorConfig):
+            raise ValueError(f"Generator needs a GeneratorConfig, got {type(config).__name__}")
+        self.config = config
+        c = config
+        self.encoder = FeatureEncoder(
+            c.feature_channels,
+            c.attention_layers,
+            c.attention_heads,
+            c.attention_splits,
+            c.attention_mlp_ratio,
+        )
+        self.monocular = MonocularBranch(c.mono_channels, c.mono_blocks)
+        self.depth_head = DepthHead(
+            c.num_depth_candidates, c.mono_channels, c.feature_channels, c.unet_channels
+        )
+        self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels)
+        self.adapter = GaussianAdapter(
+            c.refine_channels,
+            c.sh_degree,
+            c.scale_factor_min,
+            c.scale_factor_max,
+            c.max_offset_px,
+        )
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return next(self.parameters()).dtype
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.parameters()).device
+
+    # ---- validation -----------------------------------------------------------------------
+    def _validate(self, images, K, w2c, near, far) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        for name, value in (("images", images), ("K", K), ("w2c", w2c)):
+            if not isinstance(value, Tensor):
+                raise ValueError(
+                    f"Generator: {name} must be a torch.Tensor, got {type(value).__name__}"
+                )
+        if images.ndim != 5 or images.shape[2] != 3:
+            raise ValueError(
+                f"Generator: images must be [B,V,3,H,W] RGB, got {list(images.shape)}; "
+                "add the batch dimension with images[None]"
+            )
+        b, v, _, h, w = images.shape
+        if v < 2:
+            raise ValueError(
+                f"Generator needs at least 2 input views (the cost volume matches views), got {v}"
+            )
+        if v > self.config.max_views:
+            raise ValueError(
+                f"Generator accepts at most {self.config.max_views} views (config.max_views), got {v}; "
+                "pick the views nearest the region of interest"
+            )
+        if h < SIZE_MULTIPLE or w < SIZE_MULTIPLE or h % SIZE_MULTIPLE or w % SIZE_MULTIPLE:
+            fix_w = max(SIZE_MULTIPLE, round(w / SIZE_MULTIPLE) * SIZE_MULTIPLE)
+            fix_h = max(SIZE_MULTIPLE, round(h / SIZE_MULTIPLE) * SIZE_MULTIPLE)
+            raise ValueError(
+                f"Generator: image size {w}x{h} must be a multiple of {SIZE_MULTIPLE} in both axes; "
+                f"resize (scaling K with Camera.resized) or crop to e.g. {fix_w}x{fix_h}"
+            )
+        if tuple(K.shape) != (b, v, 3, 3):
+            raise ValueError(
+                f"Generator: K must be [B={b},V={v},3,3] to match images, got {list(K.shape)}"
+            )
+        if tuple(w2c.shape) != (b, v, 4, 4):
+            raise ValueError(
+                f"Generator: w2c must be [B={b},V={v},4,4] to match images, got {list(w2c.shape)}"
+            )
+        dt, dev = self.dtype, self.device
+        images, K, w2c = (x.to(device=dev, dtype=dt) for x in (images, K, w2c))
+        near, far = _per_scene(near, b, "near", images), _per_scene(far, b, "far", images)
+        for name, value in (
+            ("images", images),
+            ("K", K),
+            ("w2c", w2c),
+            ("near", near),
+            ("far", far),
+        ):
+            if not torch.isfinite(value).all():
+                raise ValueError(f"Generator: {name} contains NaN or Inf")
+        if not ((K[..., 0, 0] > 0) & (K[..., 1, 1] > 0)).all():
+            raise ValueError("Generator: K focal lengths must be positive (K is in pixels)")
+        bottom = w2c.new_tensor([0.0, 0.0, 0.0, 1.0])
+        R = w2c[..., :3, :3]
+        eye = torch.eye(3, dtype=dt, device=dev)
+        if not torch.allclose(
+            w2c[..., 3, :], bottom.expand_as(w2c[..., 3, :])
+        ) or not torch.allclose(R @ R.transpose(-1, -2), eye.expand_as(R), atol=1e-3):
+            raise ValueError(
+                "Generator: w2c must be rigid world-to-camera matrices (orthonormal rotation, last row "
+                "[0,0,0,1]); remove scale from the camera poses"
+            )
+        if not (near > 0).all():
+            raise ValueError(
+                f"Generator: near must be > 0 (depth along the optical axis), got {near.tolist()}"
+            )
+        if not (near < far).all():
+            raise ValueError(
+                f"Generator: near must be < far, got near={near.tolist()}, far={far.tolist()}; "
+                "pass the scene's depth range"
+            )
+        return images, K, w2c, near, far
+
+    def cost_volume(
+        self, feats: Tensor, K: Tensor, w2c: Tensor, near: Tensor, far: Tensor, image_size
+    ) -> Tensor:
+        """Plane-sweep correlation of ``feats [B,V,C,h,w]`` against each view's nearest views.
+
+        ``K [B,V,3,3]`` is for the full ``image_size (H, W)`` and is scaled here to the feature
+        resolution; candidates are uniform in inverse depth over [near, far] ([B] each).
+        Returns [B,V,D,h,w]."""
+        h, w = image_size
+        hf, wf = feats.shape[-2:]
+        K_feat = scale_intrinsics(K, wf / w, hf / h)  # [B,V,3,3] at feature resolution
+        neighbours = nearest_views(w2c, self.config.cost_volume_views)  # [B,V,k]
+        candidates = inverse_depth_candidates(near, far, self.config.num_depth_candidates)  # [B,D]
+        return plane_sweep_cost_volume(feats, K_feat, w2c, candidates, neighbours)
+
+    # ---- forward ----------------------------------------------------------------------------
+    def forward(self, images: Tensor, K: Tensor, w2c: Tensor, near, far) -> GeneratorOutput:
+        images, K, w2c, near, far = self._validate(images, K, w2c, near, far)
+        cfg = self.config
+        b, v, _, h, w = images.shape
+
+        x = images * 2 - 1  # [B,V,3,H,W] in [-1,1]
+        feats = self.encoder(x)  # [B,V,C,h/4,w/4] multi-view features
+        mono = self.monocular(x.flatten(0, 1))  # [BV,Cm,h/4,w/4]
+
+        cost = self.cost_volume(feats, K, w2c, near, far, (h, w))  # [B,V,D,h/4,w/4]
+
+        t, conf, hidden = self.depth_head(
+            cost.flatten(0, 1), mono, feats.flatten(0, 1)
+        )  # [BV,1,h,w], [BV,1,h,w], [BV,U0,h,w]
+        t, conf, rfeat = self.refiner(x.flatten(0, 1), t, conf, hidden)  # [BV,1,H,W] x2, [BV,R,H,W]
+
+        inv_near = (1.0 / near).repeat_interleave(v)[:, None, None]  # [BV,1,1]
+        inv_far = (1.0 / far).repeat_interleave(v)[:, None, None]
+        depth = 1.0 / (inv_far + t[:, 0] * (inv_near - inv_far))  # [BV,H,W] in (near, far)
+
+        g = self.adapter(
+            rfeat, conf, images.flatten(0, 1), depth, K.flatten(0, 1), w2c.flatten(0, 1)
+        )  # per-pixel [BV,H,W,...]
+        n = v * h * w
+        return GeneratorOutput(
+            means=g.means.reshape(b, n, 3),
+            quats=g.quats.reshape(b, n, 4),
+            scales=g.scales.reshape(b, n, 3),
+            opacities=g.opacities.reshape(b, n),
+            sh=g.sh.reshape(b, n, cfg.sh_coefficients, 3),
+            depths=depth.view(b, v, h, w),
+            confidence=conf.view(b, v, h, w),
+        )

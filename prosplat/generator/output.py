@@ -1,0 +1,48 @@
+"""What the generator returns: pixel-aligned Gaussians for a batch of scenes, plus the depth."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from torch import Tensor
+
+from prosplat.gaussians import Gaussians
+
+
+@dataclass
+class GeneratorOutput:
+    """Gaussians of B scenes, one per input pixel, N = V·H·W ordered view-major then row-major
+    (Gaussian ``v*H*W + r*W + c`` comes from pixel (c, r) of view v).
+
+    Attributes:
+        means: [B,N,3] world coordinates.
+        quats: [B,N,4] unit quaternions (w, x, y, z), world frame.
+        scales: [B,N,3] standard deviations (activated, > 0).
+        opacities: [B,N] in (0, 1).
+        sh: [B,N,K,3] SH coefficients, K = (sh_degree + 1)^2; colour = SH·basis + 0.5.
+        depths: [B,V,H,W] z along each input camera's optical axis, in [near, far].
+        confidence: [B,V,H,W] the largest candidate probability, in [1/D, 1].
+    """
+
+    means: Tensor
+    quats: Tensor
+    scales: Tensor
+    opacities: Tensor
+    sh: Tensor
+    depths: Tensor
+    confidence: Tensor
+
+    @property
+    def batch_size(self) -> int:
+        return self.means.shape[0]
+
+    def gaussians(self, b: int = 0) -> Gaussians:
+        """Scene ``b`` as :class:`prosplat.Gaussians` (keeps the autograd graph)."""
+        if not -self.batch_size <= b < self.batch_size:
+            raise IndexError(f"scene index {b} out of range for a batch of {self.batch_size}")
+        return Gaussians(
+            self.means[b], self.quats[b], self.scales[b], self.opacities[b], self.sh[b]
+        )
+
+    def detach(self) -> GeneratorOutput:
+        return GeneratorOutput(*(getattr(self, f.name).detach() for f in fields(self)))

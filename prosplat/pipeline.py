@@ -1,0 +1,254 @@
+"""The user-facing entry point: posed images in, Gaussians out.
+
+    >>> model = ProSplat.from_pretrained()            # shipped weights (or a path)
+    >>> gaussians = model.reconstruct(images, cameras)  # images [N,3,H,W] in [0,1]
+
+Checkpoints are safetensors files holding the generator's weights and, in the metadata, the
+:class:`~prosplat.generator.GeneratorConfig` as JSON, so a file always rebuilds its own network.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from prosplat.camera import Camera
+from prosplat.gaussians import Gaussians
+from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+DEFAULT_WEIGHTS = WEIGHTS_DIR / "generator_tiny.safetensors"
+TRAIN_COMMAND = "prosplat train generator --config tiny --data DIR"
+CHECKPOINT_FORMAT = "prosplat-generator"
+
+#: near = NEAR_FACTOR · (smallest camera distance) · f / image size (see near_far_from_cameras)
+NEAR_FACTOR = 0.5
+#: far = FAR_FACTOR · max(largest camera distance, near)
+FAR_FACTOR = 100.0
+
+
+def near_far_from_cameras(cameras: Sequence[Camera]) -> tuple[float, float]:
+    """A depth range from the cameras alone (no triangulation, no scene content).
+
+    Two cameras a baseline b apart see a point at depth z shifted by about ``f·b/z`` pixels;
+    once that shift exceeds the image size S the point cannot be in both views, so matching
+    can only find depths beyond ``b·f/S``. ``near`` is half of that for the closest camera pair
+    (the half leaves room for converging rigs, where the shift is smaller), with ``f/S`` the
+    smallest ``fx/W`` or ``fy/H`` over the cameras. ``far`` is 100 times the rig's largest
+    camera distance: the depth candidates are uniform in inverse depth, so a generous far
+    costs only the few candidates between 0 and 1/far.
+
+    Data with known bounds (Blender scenes, COLMAP points) should pass near/far instead.
+
+    Raises:
+        ValueError: fewer than two cameras, or two cameras at the same place (zero baseline,
+            e.g. a pure rotation), where the cameras carry no depth scale.
+    """
+    if len(cameras) < 2:
+        raise ValueError(
+            f"near/far need at least two cameras to derive a depth range, got {len(cameras)}"
+        )
+    centers = torch.stack([c.center.double().cpu() for c in cameras])  # [N,3]
+    dist = torch.cdist(centers, centers)  # [N,N]
+    n = len(cameras)
+    iu = torch.triu_indices(n, n, offset=1)
+    pair = dist[iu[0], iu[1]]  # [N(N-1)/2]
+    scale = max(1.0, float(centers.abs().max()))
+    k = int(pair.argmin())
+    if float(pair[k]) <= 1e-6 * scale:
+        i, j = int(iu[0, k]), int(iu[1, k])
+        raise ValueError(
+            f"cameras {i} and {j} are at the same place (zero baseline, e.g. a pure rotation), so the "
+            "cameras give no depth scale; pass near= and far= (scene units) explicitly"
+        )
+    f_over_size = min(min(c.fx / c.width, c.fy / c.height) for c in cameras)
+    near = NEAR_FACTOR * float(pair.min()) * f_over_size
+    far = FAR_FACTOR * max(float(pair.max()), near)
+    return near, far
+
+
+def _no_clobber_write(tmp: Path, path: Path, overwrite: bool) -> None:
+    """Move the finished ``tmp`` to ``path`` atomically; without ``overwrite``, a hard link
+    (which fails if ``path`` exists, even if it appeared a moment ago) never replaces a file."""
+    if overwrite:
+        os.replace(tmp, path)
+        return
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it") from None
+    except OSError:  # a filesystem without hard links: check, then rename
+        if path.exists():
+            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it") from None
+        os.replace(tmp, path)
+        return
+    tmp.unlink()
+
+
+class ProSplat:
+    """Stage 1 of ProSplat: the generator, with loading, saving and camera handling.
+
+    ``ProSplat(config)`` builds a randomly initialised generator (seed torch first for a
+    reproducible one); :meth:`from_pretrained` loads weights.
+    """
+
+    def __init__(self, config: GeneratorConfig | None = None, device=None) -> None:
+        self.config = TINY if config is None else config
+        self.generator = Generator(self.config).to(device if device is not None else "cpu")
+        self.generator.eval()
+
+    @property
+    def device(self) -> torch.device:
+        return self.generator.device
+
+    def to(self, device) -> ProSplat:
+        self.generator.to(device)
+        return self
+
+    # ---- checkpoints ------------------------------------------------------------------------
+    @classmethod
+    def from_pretrained(
+        cls, path: str | Path | None = None, config: GeneratorConfig | None = None, device=None
+    ) -> ProSplat:
+        """Load a checkpoint written by :meth:`save` (or the training command).
+
+        Args:
+            path: a ``.safetensors`` file; None loads the shipped ``generator_tiny`` weights.
+            config: only needed for a file without config metadata; if both are present they
+                must agree.
+            device: where to put the model (default CPU).
+        """
+        from safetensors import safe_open
+        from safetensors.torch import load_file
+
+        if path is None:
+            path = DEFAULT_WEIGHTS
+            if not path.is_file():
+                raise FileNotFoundError(
+                    f"no shipped generator weights yet ({path} is missing); train them with "
+                    f"`{TRAIN_COMMAND}` and pass the checkpoint as path=, or use ProSplat(config) "
+                    "for an untrained model"
+                )
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"generator checkpoint {path} does not exist")
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                meta = f.metadata() or {}
+            state = load_file(str(path), device="cpu")
+        except Exception as e:  # safetensors raises its own error types for corrupt files
+            raise ValueError(f"{path} is not a readable safetensors checkpoint: {e}") from e
+        stored = GeneratorConfig.from_json(meta["config"]) if "config" in meta else None
+        if stored is None and config is None:
+            raise ValueError(
+                f"{path} has no generator config in its metadata; pass config= (e.g. prosplat.generator.TINY)"
+            )
+        if stored is not None and config is not None and stored != config:
+            raise ValueError(
+                f"{path} was saved with a different generator config than the one passed; drop config= "
+                f"to use the file's ({stored.to_json()})"
+            )
+        model = cls(stored or config, device="cpu")
+        try:
+            model.generator.load_state_dict(state, strict=True)
+        except RuntimeError as e:
+            raise ValueError(f"{path} does not match the generator it describes: {e}") from e
+        if device is not None:
+            model.to(device)
+        return model
+
+    def save(self, path: str | Path, overwrite: bool = False) -> Path:
+        """Write weights + config to ``path`` atomically (a temp file in the same folder, then a
+        rename), never replacing an existing file unless ``overwrite``."""
+        from safetensors.torch import save_file
+
+        path = Path(path)
+        if path.exists() and not overwrite:
+            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        state = {k: v.detach().cpu().contiguous() for k, v in self.generator.state_dict().items()}
+        meta = {
+            "format": CHECKPOINT_FORMAT,
+            "config": self.config.to_json(),
+            "parameters": json.dumps(self.generator.num_parameters()),
+        }
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        tmp = Path(tmp_name)
+        try:
+            save_file(state, str(tmp), metadata=meta)
+            _no_clobber_write(tmp, path, overwrite)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+        return path
+
+    # ---- inference --------------------------------------------------------------------------
+    def _inputs(
+        self, images: Tensor, cameras: Sequence[Camera], near, far
+    ) -> tuple[Tensor, Tensor, Tensor, float, float]:
+        if not isinstance(images, Tensor) or images.ndim != 4 or images.shape[1] != 3:
+            shape = list(images.shape) if isinstance(images, Tensor) else type(images).__name__
+            raise ValueError(f"images must be a [N,3,H,W] tensor in [0,1], got {shape}")
+        cameras = list(cameras)
+        if len(cameras) != images.shape[0]:
+            raise ValueError(
+                f"got {images.shape[0]} images but {len(cameras)} cameras; give one camera per image"
+            )
+        h, w = images.shape[-2:]
+        for i, cam in enumerate(cameras):
+            if not isinstance(cam, Camera):
+                raise ValueError(
+                    f"cameras[{i}] must be a prosplat.Camera, got {type(cam).__name__}"
+                )
+            if (cam.width, cam.height) != (w, h):
+                raise ValueError(
+                    f"cameras[{i}] is {cam.width}x{cam.height} but the images are {w}x{h}; "
+                    "use camera.resized(W, H) when resizing images"
+                )
+        if near is None or far is None:
+            d_near, d_far = near_far_from_cameras(cameras)
+            near = d_near if near is None else near
+            far = d_far if far is None else far
+        K = torch.stack([c.K.float().cpu() for c in cameras])[None]  # [1,N,3,3]
+        w2c = torch.stack([c.world_to_cam.float().cpu() for c in cameras])[None]  # [1,N,4,4]
+        return images[None], K, w2c, float(near), float(far)
+
+    def reconstruct_full(
+        self,
+        images: Tensor,
+        cameras: Sequence[Camera],
+        near: float | None = None,
+        far: float | None = None,
+        *,
+        grad: bool = False,
+    ) -> GeneratorOutput:
+        """Run the generator (eval mode) on one scene: ``images [N,3,H,W]`` in [0,1] with one
+        :class:`Camera` each. near/far default to :func:`near_far_from_cameras`. No autograd
+        graph unless ``grad``."""
+        imgs, K, w2c, near, far = self._inputs(images, cameras, near, far)
+        was_training = self.generator.training
+        self.generator.eval()
+        try:
+            with torch.set_grad_enabled(grad):
+                return self.generator(imgs, K, w2c, near, far)
+        finally:
+            self.generator.train(was_training)
+
+    def reconstruct(
+        self,
+        images: Tensor,
+        cameras: Sequence[Camera],
+        near: float | None = None,
+        far: float | None = None,
+        *,
+        grad: bool = False,
+    ) -> Gaussians:
+        """Gaussians of one scene (N·H·W of them, view-major); see :meth:`reconstruct_full`."""
+        return self.reconstruct_full(images, cameras, near, far, grad=grad).gaussians(0)

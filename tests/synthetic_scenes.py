@@ -1,0 +1,34 @@
+"""Scene folders in the renderer's format, made without Blender from the analytic demo scene."""
+
+from __future__ import annotations
+
+from prosplat import render
+from prosplat.convert.nerfstudio import Frame, write_transforms
+from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
+from prosplat.image_io import write_depth, write_image
+
+
+def write_synthetic_scene(folder, size=32, n_views=5):
+    """A scene folder in the renderer's format, made with the analytic demo scene."""
+    cams = orbit_cameras(n_views, size, size)
+    g = pixel_aligned_gaussians(cams)
+    (folder / "images").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    frames = []
+    for v, cam in enumerate(cams):
+        write_image(folder / "images" / f"{v:03d}.png", render(g, cam).rgb)
+        depth = raycast(cam)[0].float()
+        write_depth(folder / "depth" / f"{v:03d}.exr", depth)
+        split = "input" if v % 2 == 0 else "target"
+        extra = {
+            "split": split,
+            "depth_file_path": f"depth/{v:03d}.exr",
+            "near": float(depth.min()),
+            "far": float(depth.max()),
+        }
+        if split == "target":
+            extra["target_kind"] = "interpolation"
+        frames.append(Frame(cam, f"images/{v:03d}.png", extra))
+    meta = {"near": 0.5, "far": 10.0, "seed": 1, "family": "tabletop"}
+    write_transforms(folder / "transforms.json", frames, meta)
+    return cams

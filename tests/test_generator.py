@@ -1,0 +1,395 @@
+"""The stage-1 generator: shapes, geometry conventions, gradients, degenerate inputs, checkpoints."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+import prosplat.pipeline as pipeline
+from prosplat import Camera, render
+from prosplat.gaussians import rgb_to_sh0
+from prosplat.generator import BASE, TINY, Generator, GeneratorConfig
+from prosplat.generator.adapter import GaussianAdapter, rotmat_to_quat
+from prosplat.generator.cost_volume import (
+    inverse_depth_candidates,
+    nearest_views,
+    plane_sweep_cost_volume,
+    scale_intrinsics,
+    warp_grid,
+)
+from prosplat.pipeline import ProSplat, near_far_from_cameras
+from prosplat.render.projection import quat_to_rotmat
+
+# Smaller than TINY so every test runs in well under a second on 2 cores; SH degree 1 and k=2
+# neighbours so that the higher-SH head and the k-nearest selection are exercised.
+SMALL = GeneratorConfig(
+    feature_channels=16,
+    num_depth_candidates=8,
+    attention_layers=2,
+    attention_heads=2,
+    attention_splits=2,
+    attention_mlp_ratio=2,
+    cost_volume_views=2,
+    mono_channels=8,
+    mono_blocks=1,
+    unet_channels=(8, 8, 16),
+    refine_channels=8,
+    sh_degree=1,
+)
+NEAR, FAR = 1.0, 10.0
+
+
+def rig(v: int, w: int, h: int, radius: float = 4.0, arc: float = 40.0) -> list[Camera]:
+    """``v`` cameras on an arc round the origin, looking at it."""
+    cams = []
+    for i in range(v):
+        a = math.radians(-arc / 2 + arc * i / max(v - 1, 1))
+        eye = (radius * math.sin(a), 0.3 * (i % 2), -radius * math.cos(a))
+        cams.append(Camera.look_at(eye, (0, 0, 0), (0, -1, 0), 0.9 * w, w, h))
+    return cams
+
+
+def batch(cams: list[Camera], seed: int = 0, b: int = 1):
+    g = torch.Generator().manual_seed(seed)
+    w, h = cams[0].width, cams[0].height
+    images = torch.rand(b, len(cams), 3, h, w, generator=g)
+    K = torch.stack([c.K.float() for c in cams])[None].expand(b, -1, -1, -1)
+    w2c = torch.stack([c.world_to_cam.float() for c in cams])[None].expand(b, -1, -1, -1)
+    return images, K, w2c
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    """These tensors are tiny: with 2 threads on a shared 2-core machine, the parallel-region
+    overhead of many small ops made this file 10x slower (30 s vs 3 s)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def model(one_thread) -> Generator:
+    torch.manual_seed(0)
+    return Generator(SMALL).eval()
+
+
+# ---- shapes and determinism ----------------------------------------------------------------
+@pytest.mark.parametrize("v,w,h,b", [(2, 32, 32, 2), (3, 64, 32, 1), (4, 32, 64, 1)])
+def test_output_shapes_and_ranges(model, v, w, h, b):
+    images, K, w2c = batch(rig(v, w, h), b=b)
+    with torch.no_grad():
+        out = model(images, K, w2c, torch.full((b,), NEAR), torch.full((b,), FAR))
+    n = v * h * w
+    k = SMALL.sh_coefficients
+    assert out.means.shape == (b, n, 3) and out.quats.shape == (b, n, 4)
+    assert out.scales.shape == (b, n, 3) and out.opacities.shape == (b, n)
+    assert out.sh.shape == (b, n, k, 3)
+    assert out.depths.shape == (b, v, h, w) and out.confidence.shape == (b, v, h, w)
+    for t in (out.means, out.quats, out.scales, out.opacities, out.sh, out.depths):
+        assert torch.isfinite(t).all()
+    assert (out.depths >= NEAR * (1 - 1e-5)).all() and (out.depths <= FAR * (1 + 1e-5)).all()
+    assert (out.confidence >= 1 / SMALL.num_depth_candidates - 1e-6).all()
+    assert (out.confidence <= 1 + 1e-6).all()
+    assert (out.scales > 0).all() and ((out.opacities > 0) & (out.opacities < 1)).all()
+    assert torch.allclose(out.quats.norm(dim=-1), torch.ones(b, n), atol=1e-5)
+    assert len(out.gaussians(b - 1)) == n
+
+
+def test_deterministic_in_eval_mode(model):
+    images, K, w2c = batch(rig(3, 32, 32))
+    with torch.no_grad():
+        a = model(images, K, w2c, NEAR, FAR)
+        b = model(images, K, w2c, NEAR, FAR)
+    for name in ("means", "quats", "scales", "opacities", "sh", "depths", "confidence"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_means_lie_on_their_pixel_rays_view_major(model):
+    """Gaussian v*H*W + r*W + c projects into camera v within the ±0.5 px offset of pixel
+    (c, r)'s centre, at that view's predicted depth."""
+    v, w, h = 2, 64, 32
+    cams = rig(v, w, h)
+    images, K, w2c = batch(cams)
+    with torch.no_grad():
+        out = model(images, K, w2c, NEAR, FAR)
+    means = out.means[0].view(v, h, w, 3)
+    for i, cam in enumerate(cams):
+        uv, z = cam.project(means[i].double())
+        centres = cam.pixel_centers(torch.float64)
+        assert (uv - centres).abs().max() <= SMALL.max_offset_px + 1e-3
+        assert torch.allclose(z.float(), out.depths[0, i], rtol=1e-4)
+
+
+# ---- gradients and one optimisation step ---------------------------------------------------
+def render_loss(model: Generator, images, K, w2c, target_cam, target_rgb):
+    out = model(images, K, w2c, NEAR, FAR)
+    rgb = render(out.gaussians(0), target_cam, torch.tensor([0.5, 0.5, 0.5])).rgb
+    return torch.nn.functional.mse_loss(rgb, target_rgb)
+
+
+def test_gradients_reach_every_parameter():
+    torch.manual_seed(1)
+    model = Generator(SMALL).train()
+    cams = rig(3, 32, 32)
+    images, K, w2c = batch(cams[::2])  # inputs: the two outer cameras; target: the middle one
+    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
+    render_loss(model, images, K, w2c, cams[1], target).backward()
+    missing = [n for n, p in model.named_parameters() if p.grad is None]
+    assert not missing, f"no gradient reaches {missing}"
+    bad = [n for n, p in model.named_parameters() if not torch.isfinite(p.grad).all()]
+    assert not bad, f"non-finite gradients in {bad}"
+    # No exceptions are needed: the only zero-initialised layer (adapter.sh_rest, the higher SH
+    # bands) still gets a gradient on its own weights because degree-1 SH are rendered.
+    zero = [n for n, p in model.named_parameters() if p.grad.abs().max() == 0]
+    assert not zero, f"zero gradient for {zero}"
+
+
+def test_one_adam_step_lowers_the_render_loss():
+    torch.manual_seed(2)
+    model = Generator(SMALL).train()
+    cams = rig(3, 32, 32)
+    images, K, w2c = batch(cams[::2], seed=3)
+    target = images[0, 0] * 0.5 + 0.25  # a learnable kind of target: a dimmed input view
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    loss0 = render_loss(model, images, K, w2c, cams[1], target)
+    loss0.backward()
+    opt.step()
+    with torch.no_grad():
+        loss1 = render_loss(model, images, K, w2c, cams[1], target)
+    assert loss1 < loss0 * 0.999, (loss0.item(), loss1.item())
+
+
+# ---- cost volume geometry ------------------------------------------------------------------
+def plane_features(cam: Camera, z0: float, channels: int = 16) -> torch.Tensor:
+    """[C,H,W] 'image-like' features of the world plane z = z0 as seen by ``cam``: pairs of
+    cos/sin of plane waves of different frequencies and directions, so every feature vector has
+    the same norm and the dot product is largest exactly where the two views see the same point.
+    """
+    g = torch.Generator().manual_seed(7)
+    o = cam.center.double()
+    d = cam.ray_directions(torch.float64)  # [H,W,3] through pixel centres
+    s = (z0 - o[2]) / d[..., 2]
+    xy = (o + s[..., None] * d)[..., :2]  # [H,W,2] on the plane
+    ang = torch.rand(channels // 2, generator=g, dtype=torch.float64) * math.pi
+    freq = 2 + 6 * torch.rand(channels // 2, generator=g, dtype=torch.float64)  # cycles / unit
+    dirs = torch.stack([ang.cos(), ang.sin()], -1)  # [C/2,2]
+    phase = 2 * math.pi * freq * (xy @ dirs.T)  # [H,W,C/2]
+    return torch.cat([phase.cos(), phase.sin()], -1).permute(2, 0, 1).float()
+
+
+def test_warp_grid_matches_camera_projection():
+    """The grid for a candidate depth samples the neighbour exactly where Camera.project puts
+    the reference pixel centre lifted to that depth (pixel centres at +0.5, align_corners=False)."""
+    w, h = 24, 16
+    ref = Camera.from_intrinsics(20.0, 22.0, 11.0, 8.5, w, h)
+    nb = Camera.look_at((0.7, -0.2, 0.1), (0.1, 0.0, 4.0), (0, -1, 0), 19.0, w, h)
+    K = torch.stack([ref.K, nb.K]).float()[None]
+    w2c = torch.stack([ref.world_to_cam, nb.world_to_cam]).float()[None]
+    depths = torch.tensor([[2.0, 3.5]])
+    grid = warp_grid(K, w2c, torch.tensor([[1, 0]]), depths, h, w)  # [1,2,2,h,w,2]
+    for m, z in enumerate(depths[0].tolist()):
+        pts = ref.unproject(
+            ref.pixel_centers(torch.float64), torch.full((h, w), z, dtype=torch.float64)
+        )
+        uv, _ = nb.project(pts)
+        expect = torch.stack([uv[..., 0] / w * 2 - 1, uv[..., 1] / h * 2 - 1], -1).clamp(-2, 2)
+        assert torch.allclose(grid[0, 0, m].double(), expect, atol=1e-4)
+
+
+def test_cost_volume_argmax_is_the_candidate_nearest_the_plane():
+    """Through Generator.cost_volume: cameras at full resolution (4x), features at 1/4, so the
+    intrinsics scaling to the feature resolution is part of what is checked."""
+    w, h, near, far, d = 64, 48, 1.0, 20.0, 24
+    cfg = GeneratorConfig(num_depth_candidates=d, cost_volume_views=3)
+    cands = inverse_depth_candidates(torch.tensor([near]), torch.tensor([far]), d)[0]
+    true_z = float(cands[9]) * 1.01  # off-grid, but candidate 9 is the nearest in disparity
+    ref = Camera.from_intrinsics(200.0, 200.0, 2 * w, 2 * h, 4 * w, 4 * h)  # origin, looking +z
+    nb = Camera.look_at((0.6, 0.1, 0.0), (0.0, 0.0, true_z), (0, -1, 0), 200.0, 4 * w, 4 * h)
+    feats = torch.stack([plane_features(c.resized(w, h), true_z) for c in (ref, nb)])[None]
+    K = torch.stack([ref.K, nb.K]).float()[None]
+    w2c = torch.stack([ref.world_to_cam, nb.world_to_cam]).float()[None]
+    cost = Generator.cost_volume(
+        Generator(cfg), feats, K, w2c, torch.tensor([near]), torch.tensor([far]), (4 * h, 4 * w)
+    )
+    assert cost.shape == (1, 2, d, h, w)
+    best = cost[0].argmax(1)  # [2,h,w]
+    nearest = int((1 / cands - 1 / true_z).abs().argmin())
+    assert nearest == 9
+    # the reference view's centre region maps inside the neighbour at the true depth
+    crop = best[0, h // 4 : 3 * h // 4, w // 4 : 3 * w // 4]
+    assert (crop == nearest).float().mean() > 0.95, crop
+    # the neighbour sees a tilted plane, so its depth varies; it still matches near the centre
+    assert (best[1, h // 2 - 2 : h // 2 + 2, w // 2 - 2 : w // 2 + 2] - nearest).abs().max() <= 1
+
+
+def test_zero_baseline_cost_volume_is_flat_and_finite():
+    cam = Camera.from_intrinsics(40.0, 40.0, 16, 16, 32, 32)
+    feats = torch.randn(1, 2, 8, 32, 32)
+    K = torch.stack([cam.K, cam.K]).float()[None]
+    w2c = torch.stack([cam.world_to_cam, cam.world_to_cam]).float()[None]
+    cands = inverse_depth_candidates(torch.tensor([0.5]), torch.tensor([50.0]), 6)
+    cost = plane_sweep_cost_volume(feats, K, w2c, cands, nearest_views(w2c, 3))
+    assert torch.isfinite(cost).all()
+    # every candidate samples the other view exactly at the same pixel centre: <f_i, f_j> / sqrt(C)
+    # (a half-pixel slip, e.g. align_corners=True, would blend neighbours of random features)
+    same_pixel = (feats * feats.flip(1)).sum(2, keepdim=True) / math.sqrt(8)  # [1,2,1,32,32]
+    assert torch.allclose(cost, same_pixel.expand_as(cost), atol=1e-4)
+
+
+def test_inverse_depth_candidates_and_nearest_views():
+    c = inverse_depth_candidates(torch.tensor([1.0]), torch.tensor([1e4]), 5)[0]
+    assert c[0] == pytest.approx(1.0) and c[-1] == pytest.approx(1e4, rel=1e-4)
+    steps = (1 / c).diff()
+    assert torch.allclose(steps, steps[:1].expand_as(steps))  # uniform in 1/z
+    xs = [0.0, 1.0, 3.0, 7.0, 8.0]
+    w2c = torch.eye(4).repeat(1, 5, 1, 1)
+    w2c[0, :, 0, 3] = -torch.tensor(xs)  # centres at x = xs
+    nb = nearest_views(w2c, 2)[0]
+    assert nb.tolist() == [[1, 2], [0, 2], [1, 0], [4, 2], [3, 2]]
+    assert nearest_views(w2c[:, :2], 3).shape == (1, 2, 1)  # k clipped to the other views
+    cam = Camera.from_intrinsics(70.0, 60.0, 31.0, 17.0, 64, 32)
+    assert torch.allclose(scale_intrinsics(cam.K, 16 / 64, 8 / 32), cam.resized(16, 8).K)
+
+
+# ---- the adapter: forced depth --------------------------------------------------------------
+def test_adapter_unprojects_forced_depth_like_camera():
+    torch.manual_seed(3)
+    w, h = 16, 12
+    cam = rig(2, w, h)[1]
+    adapter = GaussianAdapter(
+        8, sh_degree=1, scale_factor_min=0.25, scale_factor_max=4.0, max_offset_px=0.5
+    )
+    with torch.no_grad():
+        adapter.head.weight.zero_()  # neutral head: no offset, factor 1, identity rotation
+    depth = 2.0 + torch.rand(1, h, w)
+    rgb = torch.rand(1, 3, h, w)
+    K, w2c = cam.K.float()[None], cam.world_to_cam.float()[None]
+    g = adapter(torch.randn(1, 8, h, w), torch.rand(1, 1, h, w), rgb, depth, K, w2c)
+    expect = cam.unproject(cam.pixel_centers(torch.float64), depth[0].double())
+    assert torch.allclose(g.means[0].double(), expect, atol=1e-4)
+    assert torch.allclose(g.scales[0], (depth[0] / cam.fx)[..., None].expand(h, w, 3), rtol=1e-5)
+    R = quat_to_rotmat(g.quats.reshape(-1, 4))  # camera frame identity -> world = cam-to-world
+    assert torch.allclose(R, cam.R.T.float().expand_as(R), atol=1e-5)
+    assert torch.allclose(g.sh[0, ..., 0, :], rgb_to_sh0(rgb[0].permute(1, 2, 0)), atol=1e-5)
+    assert (g.sh[..., 1:, :] == 0).all()  # higher SH start at zero
+
+
+def test_rotmat_to_quat_round_trip():
+    q = torch.randn(64, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    q[0] = torch.tensor([0.0, 1.0, 0.0, 0.0])  # 180° turns: the trace branch is singular
+    q[1] = torch.tensor([0.0, 0.0, 0.0, 1.0])
+    R = quat_to_rotmat(q)
+    assert torch.allclose(quat_to_rotmat(rotmat_to_quat(R)), R, atol=1e-10)
+
+
+# ---- degenerate and invalid inputs ---------------------------------------------------------
+def test_degenerate_inputs_give_finite_outputs(model):
+    cams = rig(2, 32, 32)
+    images, K, w2c = batch(cams)
+    same = (images[:, :1].expand_as(images), K[:, :1].expand_as(K), w2c[:, :1].expand_as(w2c))
+    const = torch.full_like(images, 0.5)
+    with torch.no_grad():
+        outs = [
+            model(*same, NEAR, FAR),  # two identical views: zero baseline
+            model(const, K, w2c, NEAR, FAR),  # textureless
+            model(images, K, w2c, 0.01, 100.0),  # far / near = 1e4
+            model(torch.zeros_like(images), K, w2c, 1e-3, 1e3),
+        ]
+    for out in outs:
+        for t in (out.means, out.scales, out.opacities, out.sh, out.quats, out.depths):
+            assert torch.isfinite(t).all()
+        out.gaussians(0).validate()
+
+
+def test_invalid_inputs_raise_value_error(model):
+    images, K, w2c = batch(rig(2, 32, 32))
+    with pytest.raises(ValueError, match="near must be < far"):
+        model(images, K, w2c, 5.0, 5.0)
+    with pytest.raises(ValueError, match="near must be > 0"):
+        model(images, K, w2c, 0.0, 5.0)
+    with pytest.raises(ValueError, match="at least 2 input views"):
+        model(images[:, :1], K[:, :1], w2c[:, :1], NEAR, FAR)
+    with pytest.raises(ValueError, match="multiple of 32"):
+        model(images[..., :24], K, w2c, NEAR, FAR)
+    with pytest.raises(ValueError, match="K must be"):
+        model(images, K[:, :1], w2c, NEAR, FAR)
+    bad = w2c.clone()
+    bad[0, 1, 0, 3] = float("nan")
+    with pytest.raises(ValueError, match="w2c contains NaN"):
+        model(images, K, bad, NEAR, FAR)
+    with pytest.raises(ValueError, match="near"):
+        model(images, K, w2c, torch.tensor([1.0, 2.0]), FAR)  # wrong batch size
+    with pytest.raises(ValueError, match="at most"):
+        v = SMALL.max_views + 1
+        big, Kb, wb = batch(rig(v, 32, 32))
+        model(big, Kb, wb, NEAR, FAR)
+
+
+# ---- config, checkpoints, pipeline ---------------------------------------------------------
+def test_config_round_trip_and_presets():
+    assert GeneratorConfig.from_json(BASE.to_json()) == BASE
+    assert GeneratorConfig.from_dict(SMALL.to_dict()) == SMALL
+    with pytest.raises(ValueError, match="no keys"):
+        GeneratorConfig.from_dict({**TINY.to_dict(), "bogus": 1})
+    with pytest.raises(ValueError, match="must divide"):
+        GeneratorConfig(feature_channels=30, attention_heads=4)
+    assert 0.3e6 <= Generator(TINY).num_parameters() <= 1e6
+    assert 10e6 <= Generator(BASE).num_parameters() <= 30e6
+
+
+def test_save_load_round_trip(tmp_path):
+    torch.manual_seed(4)
+    a = ProSplat(SMALL)
+    path = a.save(tmp_path / "gen.safetensors")
+    b = ProSplat.from_pretrained(path)
+    assert b.config == SMALL
+    cams = rig(2, 32, 32)
+    images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    ga = a.reconstruct(images, cams, NEAR, FAR)
+    gb = b.reconstruct(images, cams, NEAR, FAR)
+    for name, t in ga.tensors().items():
+        assert torch.equal(t, gb.tensors()[name]), name
+    with pytest.raises(FileExistsError, match="overwrite=True"):
+        a.save(path)
+    torch.manual_seed(5)
+    ProSplat(SMALL).save(path, overwrite=True)
+    c = ProSplat.from_pretrained(path)
+    assert not torch.equal(c.reconstruct(images, cams, NEAR, FAR).means, ga.means)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gen.safetensors"]  # no temp files left
+    with pytest.raises(ValueError, match="different generator config"):
+        ProSplat.from_pretrained(path, config=TINY)
+
+
+def test_from_pretrained_without_shipped_weights(tmp_path, monkeypatch):
+    monkeypatch.setattr(pipeline, "DEFAULT_WEIGHTS", tmp_path / "generator_tiny.safetensors")
+    with pytest.raises(FileNotFoundError, match="prosplat train generator --config tiny --data"):
+        ProSplat.from_pretrained()
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        ProSplat.from_pretrained(tmp_path / "nope.safetensors")
+
+
+def test_reconstruct_derives_near_far_and_rejects_coincident_cameras():
+    torch.manual_seed(6)
+    model = ProSplat(SMALL)
+    cams = rig(3, 32, 32)
+    near, far = near_far_from_cameras(cams)
+    b_min = min(float((a.center - b.center).norm()) for a in cams for b in cams if a is not b)
+    assert near == pytest.approx(0.5 * b_min * 0.9)  # f / W = 0.9 in rig()
+    assert far > 100 * b_min
+    images = torch.rand(3, 3, 32, 32)
+    out = model.reconstruct_full(images, cams)
+    assert (out.depths >= near * 0.999).all() and (out.depths <= far * 1.001).all()
+    assert out.means.grad_fn is None
+    assert model.reconstruct_full(images, cams, grad=True).means.requires_grad
+    rotated = Camera.look_at(cams[0].center, (1.0, 0.0, 0.0), (0, -1, 0), 28.8, 32, 32)
+    with pytest.raises(ValueError, match="same place"):
+        model.reconstruct(images, [cams[0], rotated, cams[1]])
+    g = model.reconstruct(images, [cams[0], rotated, cams[1]], near=1.0, far=10.0)
+    assert torch.isfinite(g.means).all()
+    with pytest.raises(ValueError, match="3 images but 2 cameras"):
+        model.reconstruct(images, cams[:2])
+    with pytest.raises(ValueError, match="resized"):
+        model.reconstruct(images, rig(3, 64, 32))
