@@ -9,7 +9,6 @@ import torch
 from synthetic_scenes import write_synthetic_scene
 
 from prosplat import ProSplat
-from prosplat.generator.config import preset
 from prosplat.train.generator import TrainConfig, lr_at, train
 
 
@@ -23,12 +22,15 @@ def dataset(tmp_path_factory):
     return root
 
 
-def small_config():
-    return preset("tiny")
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny models run faster on one thread here; restore the setting for other tests."""
+    before = torch.get_num_threads()
+    yield
+    torch.set_num_threads(before)
 
 
 def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
-    torch.set_num_threads(1)
     out = tmp_path / "run"
     cfg = TrainConfig(
         data=str(dataset),
@@ -65,7 +67,6 @@ def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
 
 
 def test_training_lowers_the_loss_on_a_fixed_scene(dataset, tmp_path):
-    torch.set_num_threads(1)
     torch.manual_seed(0)
     out = tmp_path / "run"
     cfg = TrainConfig(
