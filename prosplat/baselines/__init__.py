@@ -8,6 +8,16 @@
 """
 
 from prosplat.baselines.optimize import LearningRates, optimize_gaussians
-from prosplat.baselines.plane_sweep import plane_sweep_depths, plane_sweep_gaussians
+from prosplat.baselines.plane_sweep import (
+    gaussians_from_depths,
+    plane_sweep_depths,
+    plane_sweep_gaussians,
+)
 
-__all__ = ["LearningRates", "optimize_gaussians", "plane_sweep_depths", "plane_sweep_gaussians"]
+__all__ = [
+    "LearningRates",
+    "gaussians_from_depths",
+    "optimize_gaussians",
+    "plane_sweep_depths",
+    "plane_sweep_gaussians",
+]
