@@ -28,6 +28,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from prosplat.demo_scene import demo_scene, orbit_cameras
     from prosplat.image_io import write_image
 
+    if args.size < 1 or args.views < 1:
+        print("prosplat demo: --size and --views must be positive", file=sys.stderr)
+        return 2
     out = _fresh_folder(args.out, args.overwrite)
     out.mkdir(parents=True, exist_ok=True)
     gaussians, inputs = demo_scene(args.size, n_inputs=2)
@@ -158,6 +161,43 @@ def cmd_train_generator(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eval_generator(args: argparse.Namespace) -> int:
+    import json
+    from dataclasses import asdict
+
+    from tqdm import tqdm
+
+    from prosplat import evaluate
+    from prosplat.data import find_scenes, load_scene
+    from prosplat.pipeline import ProSplat
+
+    methods = {}
+    if not args.no_generator:
+        methods["generator"] = evaluate.generator_method(ProSplat.from_pretrained(args.weights))
+    if "plane_sweep" in args.baselines:
+        methods["plane sweep"] = evaluate.plane_sweep_method()
+    if "optimize" in args.baselines:
+        for steps in args.opt_steps:
+            methods[f"3DGS opt {steps}"] = evaluate.optimize_method(steps)
+    if not methods:
+        print("prosplat eval generator: nothing to evaluate", file=sys.stderr)
+        return 2
+    folders = find_scenes(args.data)[: args.scenes]
+    rows = []
+    for folder in tqdm(folders, desc="evaluating scenes", unit="scene"):
+        budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
+        rows += evaluate.evaluate_scene(load_scene(folder), methods, args.views, budget=budget)
+    summary = evaluate.summarise(rows)
+    table = evaluate.markdown_table(summary)
+    print(table)
+    out = _fresh_folder(args.out, overwrite=False)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
+    (out / "summary.md").write_text(table + "\n")
+    print(f"wrote {out / 'summary.md'} and scores.json")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="prosplat", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -264,12 +304,47 @@ def build_parser() -> argparse.ArgumentParser:
         )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)
+
+    ev = sub.add_parser("eval", help="evaluate models on rendered test scenes")
+    ev_sub = ev.add_subparsers(dest="eval_command", required=True)
+    eg = ev_sub.add_parser(
+        "generator",
+        help="PSNR/SSIM/LPIPS, depth AbsRel and timings of the generator and baselines",
+        description="Evaluate the generator (and baselines in the same run) on scene folders: "
+        "for each input-view count, reconstruct from that many of each scene's input "
+        "views, render its targets, and print one table per view count and target "
+        "kind (interpolation / extrapolation).",
+    )
+    eg.add_argument("--data", type=Path, required=True, help="test dataset folder")
+    eg.add_argument("--weights", default=None, help="generator checkpoint (default: shipped)")
+    eg.add_argument("--views", type=int, nargs="+", default=[2, 4, 6], help="input-view counts")
+    eg.add_argument(
+        "--baselines",
+        nargs="*",
+        default=["plane_sweep", "optimize"],
+        choices=["plane_sweep", "optimize"],
+        help="baselines to run in the same table",
+    )
+    eg.add_argument(
+        "--opt-steps",
+        type=int,
+        nargs="+",
+        default=[300, 1000, 3000],
+        help="step counts of the per-scene 3DGS optimisation baseline",
+    )
+    eg.add_argument(
+        "--budget",
+        type=float,
+        default=None,
+        help="Gaussian budget: a count (>1) or a fraction (<=1); default: automatic",
+    )
+    eg.add_argument("--scenes", type=int, default=None, help="evaluate only the first N scenes")
+    eg.add_argument("--no-generator", action="store_true", help="baselines only")
+    eg.add_argument("--out", type=Path, default=Path("out/eval"), help="where scores go")
+    eg.set_defaults(func=cmd_eval_generator)
     return parser
 
 
 def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
-    if getattr(args, "size", 1) < 1 or getattr(args, "views", 1) < 1:
-        print("prosplat: --size and --views must be positive", file=sys.stderr)
-        sys.exit(2)
     sys.exit(args.func(args))

@@ -1,0 +1,187 @@
+"""``prosplat eval generator``: the generator and its baselines on held-out scenes, one table.
+
+For every scene, every input-view count and every method, the scene's V input views are
+reconstructed once (timed), pruned to the Gaussian budget, and every target view is
+rendered (timed) and scored: PSNR / SSIM / LPIPS against Blender's image and depth AbsRel
+against Blender's Z pass. Rows are grouped by method, view count and target kind
+(interpolation / extrapolation), so speed can be read against error.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from prosplat.budget import prune_gaussians
+from prosplat.camera import Camera
+from prosplat.data.rigs import farthest_point_sampling
+from prosplat.data.scene import SceneData
+from prosplat.gaussians import Gaussians
+from prosplat.render import render
+
+# A method maps (images [V,3,H,W], cameras, near, far) to (Gaussians, per-view depths [V,H,W]).
+Method = Callable[[Tensor, list[Camera], float, float], tuple[Gaussians, Tensor]]
+
+
+@dataclass
+class Score:
+    method: str
+    views: int
+    kind: str
+    scene: str
+    psnr: float
+    ssim: float
+    lpips: float
+    abs_rel: float
+    recon_s: float
+    render_ms: float
+    gaussians: int
+
+
+def generator_method(model) -> Method:
+    def run(images, cameras, near, far):
+        out = model.reconstruct_full(images, cameras, near, far)
+        return out.gaussians(0), out.depths[0]
+
+    return run
+
+
+def plane_sweep_method(n_depths: int = 64) -> Method:
+    from prosplat.baselines import plane_sweep_gaussians
+
+    def run(images, cameras, near, far):
+        g, depths, _ = plane_sweep_gaussians(images, cameras, near, far, n_depths=n_depths)
+        return g, depths
+
+    return run
+
+
+def optimize_method(steps: int) -> Method:
+    from prosplat.baselines import optimize_gaussians
+
+    def run(images, cameras, near, far):
+        g, _ = optimize_gaussians(images, cameras, near, far, steps=steps)
+        return g, None  # optimised Gaussians are no longer pixel-aligned: no dedup
+
+    return run
+
+
+def pick_inputs(scene: SceneData, n: int) -> list[int]:
+    """``n`` of the scene's input views, spread by farthest-point sampling of their centres."""
+    ins = scene.input_indices
+    if n > len(ins):
+        raise ValueError(f"{scene.folder}: has {len(ins)} input views, cannot evaluate {n}")
+    centers = torch.stack([scene.cameras[i].center for i in ins])
+    return sorted(ins[k] for k in farthest_point_sampling(centers, n))
+
+
+def abs_rel(pred: Tensor, gt: Tensor, alpha: Tensor) -> float:
+    """Mean |pred − gt| / gt over pixels with Blender depth and a drawn surface (alpha > 0.5)."""
+    valid = (gt > 0) & (alpha > 0.5)
+    if not valid.any():
+        return float("nan")
+    return float(((pred[valid] - gt[valid]).abs() / gt[valid]).mean())
+
+
+def evaluate_scene(
+    scene: SceneData,
+    methods: dict[str, Method],
+    views: list[int],
+    budget: int | float | None = None,
+) -> list[Score]:
+    """Score every method on one scene for each input-view count."""
+    from prosplat.metrics import lpips, psnr, ssim
+
+    rows = []
+    name = scene.folder.name if scene.folder else "scene"
+    for n in views:
+        idx = pick_inputs(scene, n)
+        images = scene.images[idx]
+        cams = [scene.cameras[i] for i in idx]
+        near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
+        for label, method in methods.items():
+            t0 = time.perf_counter()
+            g, depths = method(images, cams, near, far)  # methods that optimise need autograd
+            g = g.detach()
+            if depths is not None:
+                view_index = torch.arange(n).repeat_interleave(depths.shape[1] * depths.shape[2])
+                g, _, _ = prune_gaussians(
+                    g, view_index, depths, cams, near=None, far=None, budget=budget
+                )
+            recon = time.perf_counter() - t0
+            for t in scene.target_indices:
+                t1 = time.perf_counter()
+                with torch.no_grad():
+                    out = render(g, scene.cameras[t])
+                render_ms = (time.perf_counter() - t1) * 1e3
+                pred, gt = out.rgb.clamp(0, 1), scene.images[t]
+                with torch.no_grad():
+                    lp = float(lpips(pred, gt)) if min(gt.shape[1:]) >= 32 else float("nan")
+                rows.append(
+                    Score(
+                        method=label,
+                        views=n,
+                        kind=scene.target_kinds[t] or "target",
+                        scene=name,
+                        psnr=float(psnr(pred, gt)),
+                        ssim=float(ssim(pred, gt)),
+                        lpips=lp,
+                        abs_rel=abs_rel(out.depth, scene.depths[t], out.alpha)
+                        if scene.depths is not None
+                        else float("nan"),
+                        recon_s=recon,
+                        render_ms=render_ms,
+                        gaussians=len(g),
+                    )
+                )
+    return rows
+
+
+def summarise(rows: list[Score]) -> list[dict]:
+    """Mean scores and median times per (method, views, kind)."""
+    keys = sorted({(r.method, r.views, r.kind) for r in rows}, key=lambda k: (k[1], k[2], k[0]))
+    out = []
+    for method, views, kind in keys:
+        sub = [r for r in rows if (r.method, r.views, r.kind) == (method, views, kind)]
+
+        def mean(field: str, sub=sub) -> float:
+            vals = [getattr(r, field) for r in sub if getattr(r, field) == getattr(r, field)]
+            return sum(vals) / len(vals) if vals else float("nan")
+
+        recon_per_scene = {r.scene: r.recon_s for r in sub}
+        out.append(
+            dict(
+                method=method,
+                views=views,
+                kind=kind,
+                n=len(sub),
+                psnr=mean("psnr"),
+                ssim=mean("ssim"),
+                lpips=mean("lpips"),
+                abs_rel=mean("abs_rel"),
+                recon_s=statistics.median(recon_per_scene.values()),
+                render_ms=statistics.median(r.render_ms for r in sub),
+                gaussians=mean("gaussians"),
+            )
+        )
+    return out
+
+
+def markdown_table(summary: list[dict]) -> str:
+    lines = [
+        "| views | targets | method | n | PSNR ↑ | SSIM ↑ | LPIPS ↓ | depth AbsRel ↓ | recon s "
+        "| render ms/view | Gaussians |",
+        "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for s in summary:
+        lines.append(
+            f"| {s['views']} | {s['kind']} | {s['method']} | {s['n']} | {s['psnr']:.2f} | "
+            f"{s['ssim']:.3f} | {s['lpips']:.3f} | {s['abs_rel']:.3f} | {s['recon_s']:.2f} | "
+            f"{s['render_ms']:.1f} | {s['gaussians']:.0f} |"
+        )
+    return "\n".join(lines)
