@@ -183,6 +183,9 @@ class ProSplat:
         tmp = Path(tmp_name)
         try:
             save_file(state, str(tmp), metadata=meta)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp/safetensors make 0600; use the usual mode
             _no_clobber_write(tmp, path, overwrite)
         finally:
             if tmp.exists():

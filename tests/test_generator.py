@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 
 import pytest
 import torch
@@ -344,6 +345,9 @@ def test_save_load_round_trip(tmp_path):
     torch.manual_seed(4)
     a = ProSplat(SMALL)
     path = a.save(tmp_path / "gen.safetensors")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # not the 0600 of a temp file
     b = ProSplat.from_pretrained(path)
     assert b.config == SMALL
     cams = rig(2, 32, 32)
@@ -393,3 +397,20 @@ def test_reconstruct_derives_near_far_and_rejects_coincident_cameras():
         model.reconstruct(images, cams[:2])
     with pytest.raises(ValueError, match="resized"):
         model.reconstruct(images, rig(3, 64, 32))
+
+
+def test_shipped_tiny_weights_load_and_reconstruct():
+    """The packaged checkpoint loads with its config and gives finite Gaussians on its rays."""
+    if not pipeline.DEFAULT_WEIGHTS.exists():
+        pytest.fail(f"shipped weights missing: {pipeline.DEFAULT_WEIGHTS}")
+    from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians
+
+    model = pipeline.ProSplat.from_pretrained()
+    cams = orbit_cameras(2, 64, 64)
+    scene = pixel_aligned_gaussians(cams)
+    images = torch.stack([render(scene, c).rgb for c in cams])
+    out = model.reconstruct_full(images, cams, near=1.0, far=8.0)
+    g = out.gaussians(0)
+    assert len(g) == 2 * 64 * 64
+    assert torch.isfinite(out.depths).all() and (out.depths >= 1.0 - 1e-4).all()
+    assert (out.depths <= 8.0 + 1e-3).all()
