@@ -36,6 +36,7 @@ from torch import Tensor
 from prosplat.camera import Camera
 from prosplat.convert.colmap import rotmat_to_qvec
 from prosplat.gaussians import Gaussians, rgb_to_sh0
+from prosplat.rotations import quat_multiply
 
 __all__ = ["plane_sweep_depths", "plane_sweep_gaussians", "gaussians_from_depths"]
 
@@ -181,21 +182,6 @@ def plane_sweep_depths(
     return torch.stack(out_d), torch.stack(out_c)
 
 
-def _quat_mul(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton product of [..., 4] (w, x, y, z) quaternions."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        dim=-1,
-    )
-
-
 def _ray_quats(camera: Camera) -> Tensor:
     """[H*W, 4] rotations taking a Gaussian's local z axis onto each pixel's ray (world).
 
@@ -212,7 +198,7 @@ def _ray_quats(camera: Camera) -> Tensor:
         torch.stack([1 + r[:, 2], -r[:, 1], r[:, 0], torch.zeros_like(x)], -1), dim=-1
     )
     q_c2w = rotmat_to_qvec(camera.R.to(torch.float64).T.cpu()).to(q_local.device)
-    return _quat_mul(q_c2w.expand_as(q_local), q_local)
+    return quat_multiply(q_c2w.expand_as(q_local), q_local)
 
 
 def gaussians_from_depths(

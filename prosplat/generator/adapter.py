@@ -19,6 +19,7 @@ import torch
 from torch import Tensor, nn
 
 from prosplat.gaussians import rgb_to_sh0
+from prosplat.rotations import quat_multiply
 
 
 def rotmat_to_quat(R: Tensor) -> Tensor:
@@ -56,21 +57,6 @@ def rotmat_to_quat(R: Tensor) -> Tensor:
     q = torch.gather(q, -2, best[..., None, None].expand(*best.shape, 1, 4))[..., 0, :]
     q = q / q.norm(dim=-1, keepdim=True)
     return torch.where(q[..., :1] < 0, -q, q)
-
-
-def quat_multiply(a: Tensor, b: Tensor) -> Tensor:
-    """Hamilton product of [...,4] (w, x, y, z) quaternions: rotation b first, then a."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        dim=-1,
-    )
 
 
 def normalize_quat(q: Tensor, eps: float = 1e-6) -> Tensor:
