@@ -113,15 +113,6 @@ def _check(
             )
 
 
-def _pixel(camera: Camera, points: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Nearest pixel (col, row) of ``points`` [M,3] in ``camera``, its z, and whether inside."""
-    uv, z = camera.project(points)
-    col = torch.floor(uv[:, 0]).long()
-    row = torch.floor(uv[:, 1]).long()
-    inside = (z > 0) & (col >= 0) & (col < camera.width) & (row >= 0) & (row < camera.height)
-    return col.clamp(0, camera.width - 1), row.clamp(0, camera.height - 1), z, inside
-
-
 def _out_of_bounds(
     means: Tensor, cameras: list[Camera], near: float | None, far: float | None, bounds
 ) -> Tensor:
@@ -134,7 +125,7 @@ def _out_of_bounds(
         return out
     seen = torch.zeros_like(out)
     for cam in cameras:
-        _, _, z, inside = _pixel(cam, means)
+        _, _, z, inside = cam.nearest_pixels(means)
         bad = torch.zeros_like(out)
         if near is not None:
             bad |= z < near * (1 - _RANGE_SLACK)
@@ -161,7 +152,7 @@ def _duplicates(
     covered = []
     for i, cam in enumerate(cameras[:-1]):
         idx = torch.nonzero(alive & (view_index == i)).squeeze(1)
-        col, row, _, inside = _pixel(cam, means[idx])
+        col, row, _, inside = cam.nearest_pixels(means[idx])
         mask = torch.zeros(cam.height, cam.width, dtype=torch.bool, device=means.device)
         mask[row[inside], col[inside]] = True
         covered.append(mask)
@@ -172,7 +163,7 @@ def _duplicates(
         pts = means[idx]
         hit = torch.zeros(idx.shape[0], dtype=torch.bool, device=means.device)
         for i in range(j):
-            col, row, z, inside = _pixel(cameras[i], pts)
+            col, row, z, inside = cameras[i].nearest_pixels(pts)
             d = depths[i].to(device=means.device, dtype=means.dtype)[row, col]
             agree = (d > 0) & torch.isfinite(d) & ((d - z).abs() <= tol * z)
             hit |= inside & covered[i][row, col] & agree

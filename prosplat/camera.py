@@ -239,6 +239,22 @@ class Camera:
         v = K[1, 1] * pc[..., 1] / z_safe + K[1, 2]
         return torch.stack([u, v], dim=-1), z
 
+    def nearest_pixels(self, points: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """The pixel each world point falls in, for depth-map lookups.
+
+        Args:
+            points: [M, 3] world coordinates.
+        Returns:
+            col, row: [M] long, clamped into the image so they can always index a map;
+            depth: [M] z along the optical axis;
+            inside: [M] bool, in front of the camera and within the image.
+        """
+        uv, z = self.project(points)
+        col = torch.floor(uv[:, 0]).long()
+        row = torch.floor(uv[:, 1]).long()
+        inside = (z > 0) & (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
+        return col.clamp(0, self.width - 1), row.clamp(0, self.height - 1), z, inside
+
     def unproject(self, uv: Tensor, depth: Tensor) -> Tensor:
         """Lift pixels to world points.
 

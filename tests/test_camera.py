@@ -156,3 +156,15 @@ def test_pixel_centers_and_rays() -> None:
     # symmetrically, so their mean points along the optical axis.
     mean = rays[:, 1:3].reshape(-1, 3).mean(0)
     torch.testing.assert_close(mean / mean.norm(), cam.forward)
+
+
+def test_nearest_pixels_finds_the_pixel_and_flags_outside_points():
+    cam = Camera.from_intrinsics(10.0, 10.0, 4.0, 3.0, 8, 6)
+    uv = torch.tensor([[2.5, 1.5], [7.9, 5.9], [0.01, 0.01]], dtype=torch.float64)
+    pts = cam.unproject(uv, torch.tensor([2.0, 3.0, 1.0], dtype=torch.float64))
+    pts = torch.cat([pts, torch.tensor([[0.0, 0.0, -1.0], [100.0, 0.0, 1.0]], dtype=torch.float64)])
+    col, row, z, inside = cam.nearest_pixels(pts)
+    assert col.tolist()[:3] == [2, 7, 0] and row.tolist()[:3] == [1, 5, 0]
+    assert inside.tolist() == [True, True, True, False, False]
+    assert z.tolist()[:3] == pytest.approx([2.0, 3.0, 1.0])
+    assert 0 <= col.min() and col.max() <= 7 and 0 <= row.min() and row.max() <= 5  # clamped

@@ -28,13 +28,9 @@ def covisibility(
         return 0.0
     uv = src.pixel_centers(torch.float64)[valid]  # [P,2]
     pts = src.unproject(uv, src_depth.to(torch.float64)[valid])  # [P,3]
-    uv2, z2 = dst.project(pts)
-    col = torch.floor(uv2[:, 0]).long()
-    row = torch.floor(uv2[:, 1]).long()
-    inside = (z2 > 0) & (col >= 0) & (col < dst.width) & (row >= 0) & (row < dst.height)
-    seen = torch.zeros_like(inside)
-    d = dst_depth.to(torch.float64)[row[inside], col[inside]]
-    seen[inside] = (d > 0) & ((d - z2[inside]).abs() <= rel_tol * z2[inside])
+    col, row, z2, inside = dst.nearest_pixels(pts)
+    d = dst_depth.to(torch.float64)[row, col]
+    seen = inside & (d > 0) & ((d - z2).abs() <= rel_tol * z2)
     return float(seen.sum()) / n_valid
 
 
