@@ -61,6 +61,26 @@ TileLists build_tile_lists(int64_t n_sorted, const int64_t* order, const int32_t
   return tl;
 }
 
+// A tile's pixel rectangle (inclusive) and the index of a pixel within it.
+struct TileRect {
+  int x0, y0, x1, y1, w;
+  int local(int x, int y) const { return (y - y0) * w + (x - x0); }
+  int size() const { return w * (y1 - y0 + 1); }
+};
+
+TileRect tile_rect(const TileLists& tl, int64_t tile, int width, int height) {
+  const int x0 = int(tile % tl.tiles_x) * kTile, y0 = int(tile / tl.tiles_x) * kTile;
+  const int x1 = std::min(x0 + kTile, width) - 1, y1 = std::min(y0 + kTile, height) - 1;
+  return {x0, y0, x1, y1, x1 - x0 + 1};
+}
+
+// The Gaussian's exponent at offset (dx, dy) from its mean. One function for both passes,
+// so the backward pass skips and clamps exactly the samples the forward pass did.
+template <typename T>
+inline T gaussian_power(T dx, T dy, T ca, T cb, T cc) {
+  return T(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
+}
+
 template <typename Fn>
 void parallel_tiles(int64_t n_tiles, int n_threads, Fn fn) {
   n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
@@ -86,9 +106,8 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
   const int64_t n_pix = int64_t(width) * height;
   const T min_alpha = T(1) / T(255);
   parallel_tiles(int64_t(tl.tiles_x) * tl.tiles_y, n_threads, [&](int64_t tile, int) {
-    const int x0 = int(tile % tl.tiles_x) * kTile, y0 = int(tile / tl.tiles_x) * kTile;
-    const int x1 = std::min(x0 + kTile, width) - 1, y1 = std::min(y0 + kTile, height) - 1;
-    const int tw = x1 - x0 + 1;
+    const TileRect r = tile_rect(tl, tile, width, height);
+    const int x0 = r.x0, y0 = r.y0, x1 = r.x1, y1 = r.y1;
     T trans[kTile * kTile];
     T acc[kTile * kTile * 8];
     std::vector<T> acc_big;  // only when n_feat > 8
@@ -101,7 +120,7 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
     }
     int32_t last[kTile * kTile];
     bool done[kTile * kTile];
-    const int n_local = tw * (y1 - y0 + 1);
+    const int n_local = r.size();
     std::fill(trans, trans + kTile * kTile, T(1));
     std::fill(last, last + kTile * kTile, 0);
     std::fill(done, done + kTile * kTile, false);
@@ -119,10 +138,10 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
       for (int y = by0; y <= by1; ++y) {
         const T dy = T(y) + T(0.5) - my;
         for (int x = bx0; x <= bx1; ++x) {
-          const int p = (y - y0) * tw + (x - x0);
+          const int p = r.local(x, y);
           if (done[p]) continue;
           const T dx = T(x) + T(0.5) - mx;
-          const T power = T(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
+          const T power = gaussian_power(dx, dy, ca, cb, cc);
           const T alpha = std::min(T(0.99), op * std::exp(power));
           if (alpha < min_alpha) continue;
           const T next_t = trans[p] * (T(1) - alpha);
@@ -141,7 +160,7 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
     }
     for (int y = y0; y <= y1; ++y)
       for (int x = x0; x <= x1; ++x) {
-        const int p = (y - y0) * tw + (x - x0);
+        const int p = r.local(x, y);
         const int64_t pix = int64_t(y) * width + x;
         for (int f = 0; f < n_feat; ++f) out[f * n_pix + pix] = accp[p * n_feat + f];
         out_trans[pix] = trans[p];
@@ -164,17 +183,16 @@ void backward(int64_t n_sorted, int n_feat, int width, int height, const T* mean
   const T min_alpha = T(1) / T(255);
   parallel_tiles(int64_t(tl.tiles_x) * tl.tiles_y, n_threads, [&](int64_t tile, int tid) {
     T* gbuf = grads + int64_t(tid) * n_gauss * stride;
-    const int x0 = int(tile % tl.tiles_x) * kTile, y0 = int(tile / tl.tiles_x) * kTile;
-    const int x1 = std::min(x0 + kTile, width) - 1, y1 = std::min(y0 + kTile, height) - 1;
-    const int tw = x1 - x0 + 1;
-    const int n_local = tw * (y1 - y0 + 1);
+    const TileRect r = tile_rect(tl, tile, width, height);
+    const int x0 = r.x0, y0 = r.y0, x1 = r.x1, y1 = r.y1;
+    const int n_local = r.size();
     std::vector<T> trans(n_local), t_final(n_local), g_t(n_local);
     std::vector<T> behind(size_t(n_local) * n_feat, T(0)), g_pix(size_t(n_local) * n_feat);
     std::vector<int32_t> lst(n_local);
     int32_t max_last = 0;
     for (int y = y0; y <= y1; ++y)
       for (int x = x0; x <= x1; ++x) {
-        const int p = (y - y0) * tw + (x - x0);
+        const int p = r.local(x, y);
         const int64_t pix = int64_t(y) * width + x;
         trans[p] = t_final[p] = trans_final[pix];
         g_t[p] = grad_trans[pix];
@@ -199,10 +217,10 @@ void backward(int64_t n_sorted, int n_feat, int width, int height, const T* mean
       for (int y = by0; y <= by1; ++y) {
         const T dy = T(y) + T(0.5) - my;
         for (int x = bx0; x <= bx1; ++x) {
-          const int p = (y - y0) * tw + (x - x0);
+          const int p = r.local(x, y);
           if (k >= lst[p]) continue;
           const T dx = T(x) + T(0.5) - mx;
-          const T power = T(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
+          const T power = gaussian_power(dx, dy, ca, cb, cc);
           const T gauss = std::exp(power);
           const T raw = op * gauss;
           const T alpha = std::min(T(0.99), raw);
