@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e ".[blender,test,bench]"
+	$(PY) -m pip install --quiet -e ".[blender,test,bench,lora]"
 	$(PY) -m prosplat.metrics.lpips_weights
 	touch $(STAMP)
 
