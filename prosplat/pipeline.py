@@ -1,7 +1,8 @@
-"""The user-facing entry point: posed images in, Gaussians out.
+"""The user-facing entry point: posed images in, Gaussians out, enhanced views of any camera.
 
     >>> model = ProSplat.from_pretrained()            # shipped weights (or a path)
     >>> gaussians = model.reconstruct(images, cameras)  # images [N,3,H,W] in [0,1]
+    >>> view = model.render(gaussians, camera, images, cameras)  # view.image: enhanced [3,H,W]
 
 Checkpoints are safetensors files holding the generator's weights and, in the metadata, the
 :class:`~prosplat.generator.GeneratorConfig` as JSON, so a file always rebuilds its own network.
@@ -10,8 +11,6 @@ Checkpoints are safetensors files holding the generator's weights and, in the me
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -19,6 +18,8 @@ import torch
 from torch import Tensor
 
 from prosplat.camera import Camera
+from prosplat.checkpoints import read_checkpoint, write_checkpoint
+from prosplat.enhance import EnhancedView, render_view
 from prosplat.gaussians import Gaussians
 from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
 
@@ -73,35 +74,39 @@ def near_far_from_cameras(cameras: Sequence[Camera]) -> tuple[float, float]:
     return near, far
 
 
-def _no_clobber_write(tmp: Path, path: Path, overwrite: bool) -> None:
-    """Move the finished ``tmp`` to ``path`` atomically; without ``overwrite``, a hard link
-    (which fails if ``path`` exists, even if it appeared a moment ago) never replaces a file."""
-    if overwrite:
-        os.replace(tmp, path)
-        return
-    try:
-        os.link(tmp, path)
-    except FileExistsError:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it") from None
-    except OSError:  # a filesystem without hard links: check, then rename
-        if path.exists():
-            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it") from None
-        os.replace(tmp, path)
-        return
-    tmp.unlink()
+def _load_improver(improve: str | Path | bool | None):
+    """The improvement model ``from_pretrained(improve=...)`` asks for (see there)."""
+    if improve is False:
+        return None
+    from prosplat.improve.io import DEFAULT_IMPROVE_WEIGHTS, load_improver
+
+    if improve is None or improve is True:
+        if not DEFAULT_IMPROVE_WEIGHTS.is_file():
+            if improve is True:
+                raise FileNotFoundError(
+                    f"no shipped improvement-model weights ({DEFAULT_IMPROVE_WEIGHTS} is missing); "
+                    "train them with `prosplat train improve` and pass improve=PATH"
+                )
+            return None
+        return load_improver(DEFAULT_IMPROVE_WEIGHTS)
+    return load_improver(improve)
 
 
 class ProSplat:
-    """Stage 1 of ProSplat: the generator, with loading, saving and camera handling.
+    """ProSplat: the generator (stage 1) and, when loaded, the improvement model (stage 2).
 
     ``ProSplat(config)`` builds a randomly initialised generator (seed torch first for a
-    reproducible one); :meth:`from_pretrained` loads weights.
+    reproducible one) and no improvement model; :meth:`from_pretrained` loads weights.
+    ``model.improver`` is the stage-2 :class:`~prosplat.improve.ImproveModel` or None.
     """
 
-    def __init__(self, config: GeneratorConfig | None = None, device=None) -> None:
+    def __init__(self, config: GeneratorConfig | None = None, device=None, improver=None) -> None:
         self.config = TINY if config is None else config
         self.generator = Generator(self.config).to(device if device is not None else "cpu")
         self.generator.eval()
+        self.improver = improver
+        if improver is not None:
+            improver.to(self.device).eval()
 
     @property
     def device(self) -> torch.device:
@@ -109,12 +114,18 @@ class ProSplat:
 
     def to(self, device) -> ProSplat:
         self.generator.to(device)
+        if self.improver is not None:
+            self.improver.to(device)
         return self
 
     # ---- checkpoints ------------------------------------------------------------------------
     @classmethod
     def from_pretrained(
-        cls, path: str | Path | None = None, config: GeneratorConfig | None = None, device=None
+        cls,
+        path: str | Path | None = None,
+        config: GeneratorConfig | None = None,
+        device=None,
+        improve: str | Path | bool | None = None,
     ) -> ProSplat:
         """Load a checkpoint written by :meth:`save` (or the training command).
 
@@ -123,10 +134,10 @@ class ProSplat:
             config: only needed for a file without config metadata; if both are present they
                 must agree.
             device: where to put the model (default CPU).
+            improve: the stage-2 checkpoint: None loads the shipped ``improve_tiny`` weights
+                when they exist (else no improvement model), a path loads that file, False
+                loads none.
         """
-        from safetensors import safe_open
-        from safetensors.torch import load_file
-
         if path is None:
             path = DEFAULT_WEIGHTS
             if not path.is_file():
@@ -136,14 +147,7 @@ class ProSplat:
                     "for an untrained model"
                 )
         path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"generator checkpoint {path} does not exist")
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                meta = f.metadata() or {}
-            state = load_file(str(path), device="cpu")
-        except Exception as e:  # safetensors raises its own error types for corrupt files
-            raise ValueError(f"{path} is not a readable safetensors checkpoint: {e}") from e
+        state, meta = read_checkpoint(path, "generator")
         stored = GeneratorConfig.from_json(meta["config"]) if "config" in meta else None
         if stored is None and config is None:
             raise ValueError(
@@ -154,7 +158,7 @@ class ProSplat:
                 f"{path} was saved with a different generator config than the one passed; drop config= "
                 f"to use the file's ({stored.to_json()})"
             )
-        model = cls(stored or config, device="cpu")
+        model = cls(stored or config, device="cpu", improver=_load_improver(improve))
         try:
             model.generator.load_state_dict(state, strict=True)
         except RuntimeError as e:
@@ -166,31 +170,12 @@ class ProSplat:
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write weights + config to ``path`` atomically (a temp file in the same folder, then a
         rename), never replacing an existing file unless ``overwrite``."""
-        from safetensors.torch import save_file
-
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        state = {k: v.detach().cpu().contiguous() for k, v in self.generator.state_dict().items()}
         meta = {
             "format": CHECKPOINT_FORMAT,
             "config": self.config.to_json(),
             "parameters": json.dumps(self.generator.num_parameters()),
         }
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        tmp = Path(tmp_name)
-        try:
-            save_file(state, str(tmp), metadata=meta)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp/safetensors make 0600; use the usual mode
-            _no_clobber_write(tmp, path, overwrite)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
-        return path
+        return write_checkpoint(self.generator.state_dict(), path, meta, overwrite)
 
     # ---- inference --------------------------------------------------------------------------
     def _inputs(
@@ -255,3 +240,42 @@ class ProSplat:
     ) -> Gaussians:
         """Gaussians of one scene (N·H·W of them, view-major); see :meth:`reconstruct_full`."""
         return self.reconstruct_full(images, cameras, near, far, grad=grad).gaussians(0)
+
+    def render(
+        self,
+        gaussians: Gaussians,
+        camera: Camera,
+        images: Tensor | None = None,
+        cameras: Sequence[Camera] | None = None,
+        enhance: bool = True,
+        *,
+        reference_method: str = "paper",
+        background: Tensor | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> EnhancedView:
+        """Render ``camera`` and enhance it with the improvement model.
+
+        MORI picks the reference among the input ``cameras`` (``reference_method`` "paper" or
+        "overlap"); ``images [N,3,H,W]`` are their images. ``enhance=False`` returns the raw
+        render (``image is raw``, ``reference`` None). ``dtype=torch.bfloat16`` runs stage 2
+        under autocast.
+
+        Raises:
+            ValueError: ``enhance`` without an improvement model loaded (train one with
+                ``prosplat train improve`` or pass ``improve=`` to :meth:`from_pretrained`).
+        """
+        if enhance and self.improver is None:
+            raise ValueError(
+                "no improvement model is loaded (model.improver is None); load one with "
+                "ProSplat.from_pretrained(improve=PATH) or call render(..., enhance=False)"
+            )
+        return render_view(
+            gaussians,
+            camera,
+            images,
+            cameras,
+            self.improver if enhance else None,
+            reference_method=reference_method,
+            background=background,
+            dtype=dtype,
+        )

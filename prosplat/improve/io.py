@@ -1,0 +1,46 @@
+"""Saving and loading improvement-model checkpoints (weights + config JSON in the metadata)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from prosplat.checkpoints import read_checkpoint, write_checkpoint
+from prosplat.improve.config import ImproveConfig
+from prosplat.improve.model import ImproveModel
+
+CHECKPOINT_FORMAT = "prosplat-improve"
+WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
+DEFAULT_IMPROVE_WEIGHTS = WEIGHTS_DIR / "improve_tiny.safetensors"
+
+
+def save_improver(
+    model: ImproveModel, path: str | Path, overwrite: bool = False, **extra: str
+) -> Path:
+    """Write ``model``'s weights and config to ``path`` (atomic, no clobbering); ``extra``
+    strings go into the metadata too (e.g. the training command)."""
+    meta = {
+        "format": CHECKPOINT_FORMAT,
+        "config": model.config.to_json(),
+        "parameters": json.dumps(model.num_parameters()),
+        **extra,
+    }
+    return write_checkpoint(model.state_dict(), path, meta, overwrite)
+
+
+def load_improver(path: str | Path, device=None) -> ImproveModel:
+    """The :class:`ImproveModel` a checkpoint written by :func:`save_improver` describes."""
+    path = Path(path)
+    state, meta = read_checkpoint(path, "improvement-model")
+    if meta.get("format") != CHECKPOINT_FORMAT or "config" not in meta:
+        raise ValueError(
+            f"{path} is not an improvement-model checkpoint (format {meta.get('format')!r}); "
+            "generator checkpoints load with ProSplat.from_pretrained(path)"
+        )
+    model = ImproveModel(ImproveConfig.from_json(meta["config"]))
+    try:
+        model.load_state_dict(state, strict=True)
+    except RuntimeError as e:
+        raise ValueError(f"{path} does not match the improvement model it describes: {e}") from e
+    model.eval()
+    return model.to(device) if device is not None else model
