@@ -1,0 +1,135 @@
+"""Data curation for stage 2, as in the paper: the trained generator renders the target views
+of training scenes, and each sample keeps the render, its MORI reference view with the
+fundamental matrix to it, and the ground truth.
+
+Both reference choices are stored (the paper's score and the geometric overlap), so one
+curated file serves every ablation row. Curated sets are caches (``prosplat train curate``
+writes one safetensors file), never committed.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from prosplat.checkpoints import read_checkpoint, write_checkpoint
+from prosplat.data.dataset import find_scenes
+from prosplat.data.scene import load_scene
+from prosplat.evaluate import pick_inputs
+from prosplat.improve.epipolar import fundamental_matrix
+from prosplat.improve.mori import select_reference
+from prosplat.render import render
+
+CURATED_FORMAT = "prosplat-curated"
+KINDS = ("interpolation", "extrapolation")
+METHODS = ("paper", "overlap")
+
+#: Per sample: images [S,3,H,W] (float16 in [0,1]), F [S,3,3], kind/inputs/scene [S] int.
+CuratedSet = dict[str, Tensor]
+
+
+def curate_scene(model, scene, views: Sequence[int]) -> dict[str, list[Tensor]]:
+    """Samples of one scene for each input-view count in ``views`` (counts above the scene's
+    input views are skipped)."""
+    cols: dict[str, list[Tensor]] = {}
+
+    def put(key: str, value: Tensor) -> None:
+        cols.setdefault(key, []).append(value)
+
+    for n in views:
+        if n > len(scene.input_indices):
+            continue
+        idx = pick_inputs(scene, n)
+        cams = [scene.cameras[i] for i in idx]
+        near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
+        full = model.reconstruct_full(scene.images[idx], cams, near, far)
+        gaussians = full.gaussians(0)
+        input_depths = full.depths[0]  # [N,H,W] the generator's depth per input view
+        for t in scene.target_indices:
+            cam = scene.cameras[t]
+            with torch.no_grad():
+                out = render(gaussians, cam, background=torch.zeros(3))
+            put("render", out.rgb.half())
+            put("target", scene.images[t].half())
+            put("kind", torch.tensor(KINDS.index(scene.target_kinds[t] or "interpolation")))
+            put("inputs", torch.tensor(n))
+            for method in METHODS:
+                j = select_reference(
+                    cam, cams, method=method, target_depth=out.depth, input_depths=input_depths
+                )
+                put(f"ref_{method}", scene.images[idx[j]].half())
+                put(f"F_{method}", fundamental_matrix(cam, cams[j]).float())
+    return cols
+
+
+def curate(
+    model,
+    root: str | Path,
+    out: str | Path,
+    views: Sequence[int] = (2, 4),
+    overwrite: bool = False,
+    progress: bool = True,
+    command: str = "",
+) -> Path:
+    """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``."""
+    from tqdm import tqdm
+
+    folders = find_scenes(root)
+    if not folders:
+        raise FileNotFoundError(f"no scenes (folders with transforms.json) under {root}")
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass overwrite=True (--overwrite) to replace it")
+    cols: dict[str, list[Tensor]] = {}
+    size = None
+    for s, folder in enumerate(tqdm(folders, desc="curating", unit="scene", disable=not progress)):
+        scene = load_scene(folder, load_depth=False)
+        hw = tuple(scene.images.shape[-2:])
+        if size is not None and hw != size:
+            raise ValueError(
+                f"{folder} is {hw[1]}x{hw[0]} but earlier scenes are {size[1]}x{size[0]}; curate "
+                "one image size per file"
+            )
+        size = hw
+        part = curate_scene(model, scene, views)
+        for k, v in part.items():
+            cols.setdefault(k, []).extend(v)
+        cols.setdefault("scene", []).extend([torch.tensor(s)] * len(part.get("render", [])))
+    if not cols.get("render"):
+        raise ValueError(
+            f"no samples: the scenes under {root} have no target views or too few inputs"
+        )
+    tensors = {k: torch.stack(v) for k, v in cols.items()}
+    meta = {
+        "format": CURATED_FORMAT,
+        "scenes": json.dumps([f.name for f in folders]),
+        "views": json.dumps(list(views)),
+        "command": command,
+    }
+    return write_checkpoint(tensors, out, meta, overwrite)
+
+
+def load_curated(path: str | Path) -> CuratedSet:
+    """A curated set written by :func:`curate` (images stay float16 until batched)."""
+    tensors, meta = read_checkpoint(path, "curated stage-2 data")
+    if meta.get("format") != CURATED_FORMAT:
+        raise ValueError(
+            f"{path} is not a curated stage-2 set; make one with `prosplat train curate`"
+        )
+    return tensors
+
+
+def curated_batch(data: CuratedSet, index: Tensor, method: str, device) -> tuple[Tensor, ...]:
+    """(render, reference, F, target) float32 on ``device`` for the samples ``index``."""
+    if method not in METHODS:
+        raise ValueError(f"reference method must be one of {METHODS}, got {method!r}")
+    return (
+        data["render"][index].float().to(device),
+        data[f"ref_{method}"][index].float().to(device),
+        data[f"F_{method}"][index].float().to(device),
+        data["target"][index].float().to(device),
+    )

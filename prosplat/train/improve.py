@@ -1,0 +1,308 @@
+"""Training stage 2, divide and conquer: the improvement model alone on curated renders
+(``prosplat train improve``), then jointly with the generator (``prosplat train joint``).
+
+Independent training: MSE + 5·LPIPS between the enhanced curated render and the ground truth.
+Joint training (the paper's Sec. III-D): the generator is frozen except its Gaussian adapter,
+the improvement model frozen except its VAE encoder (and, with ``train_decoder``, its decoder,
+as the paper's implementation section says); the loss is summed over the target views of one
+forward pass of the generator, rendered differentiably and enhanced.
+
+Both loops run on the CPU, one GPU, or several under torchrun (see
+:mod:`prosplat.train.common`), resume from ``out`` and log every step to ``log.jsonl``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from prosplat.improve.config import preset
+from prosplat.improve.io import load_improver, save_improver
+from prosplat.improve.model import ImproveModel
+from prosplat.train.common import (
+    Dist,
+    load_checkpoint,
+    save_checkpoint,
+    setup_distributed,
+    step_indices,
+)
+from prosplat.train.curate import curated_batch, load_curated
+
+
+@dataclass(frozen=True)
+class ImproveTrainConfig:
+    """An independent stage-2 run; saved beside its checkpoints as ``train_config.json``."""
+
+    data: str  # curated file (prosplat train curate)
+    out: str
+    config: str = "tiny"
+    init: str | None = None  # start from this improvement checkpoint instead of random
+    val: str | None = None  # curated validation file
+    steps: int = 3000
+    batch: int = 8
+    lr: float = 5e-4
+    lpips_weight: float = 5.0
+    timestep: int = 199
+    denoise: bool = True
+    reference: bool = True
+    reference_method: str = "paper"  # "paper" | "overlap"
+    grad_clip: float = 1.0
+    warmup: int = 100
+    log_every: int = 10
+    val_every: int = 500
+    save_every: int = 500
+    seed: int = 0
+    device: str = "auto"
+
+
+@dataclass(frozen=True)
+class JointTrainConfig:
+    """A joint run: generator adapter + improvement VAE encoder (and decoder)."""
+
+    data: str  # scene folders
+    out: str
+    generator: str  # generator checkpoint
+    improver: str  # improvement checkpoint (independently trained)
+    steps: int = 500
+    inputs: int = 2
+    targets: int = 4
+    lr: float = 5e-5
+    lpips_weight: float = 5.0
+    train_decoder: bool = True
+    reference_method: str = "paper"
+    grad_clip: float = 1.0
+    warmup: int = 20
+    log_every: int = 10
+    save_every: int = 100
+    seed: int = 0
+    device: str = "auto"
+
+
+def _lr(step: int, base: float, warmup: int, steps: int) -> float:
+    """Linear warm-up, then cosine decay to 10 %."""
+    if step < warmup:
+        return base * (step + 1) / warmup
+    t = (step - warmup) / max(1, steps - warmup)
+    return base * (0.1 + 0.45 * (1 + math.cos(math.pi * min(t, 1.0))))
+
+
+def enhance_loss(pred: Tensor, target: Tensor, lpips_fn, weight: float) -> tuple[Tensor, dict]:
+    """Mean MSE + ``weight`` · mean LPIPS over the batch [B,3,H,W]."""
+    mse = (pred - target).square().mean()
+    lp = lpips_fn(pred, target).mean() if weight > 0 else mse.new_zeros(())
+    return mse + weight * lp, {"mse": float(mse.detach()), "lpips": float(lp.detach())}
+
+
+class _Run:
+    """The bookkeeping both loops share: resume, log, progress bar, checkpoints."""
+
+    def __init__(self, cfg, dist: Dist, params, weights_fn, progress: bool, desc: str):
+        from tqdm import tqdm
+
+        self.cfg, self.dist, self.weights_fn = cfg, dist, weights_fn
+        self.out = Path(cfg.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=0.0)
+        self.step = 0
+        ckpt = load_checkpoint(self.out, map_location=dist.device)
+        cfg_path = self.out / "train_config.json"
+        if ckpt is None and cfg_path.exists():
+            raise FileExistsError(
+                f"{self.out} holds another run's config but no checkpoint; pick a new --out"
+            )
+        self.resumed = ckpt
+        if ckpt is not None:
+            self.opt.load_state_dict(ckpt.state["optimizer"])
+            self.step = ckpt.step
+        elif dist.is_main:
+            cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
+        self.log = open(self.out / "log.jsonl", "a") if dist.is_main else None
+        self.bar = tqdm(
+            total=cfg.steps, initial=self.step, desc=desc, disable=not progress or not dist.is_main
+        )
+        self.t0 = time.perf_counter()
+
+    def advance(self, loss: Tensor, params, parts: dict, extra: dict | None = None) -> None:
+        for group in self.opt.param_groups:
+            group["lr"] = _lr(self.step, self.cfg.lr, self.cfg.warmup, self.cfg.steps)
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if not math.isfinite(float(loss.detach())):
+            raise FloatingPointError(
+                f"loss became {float(loss.detach())} at step {self.step}; lower --lr"
+            )
+        grad = float(torch.nn.utils.clip_grad_norm_(params, self.cfg.grad_clip))
+        self.opt.step()
+        self.step += 1
+        self.bar.update(1)
+        self.bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
+        if self.step % self.cfg.log_every == 0:
+            means = self.dist.mean_all({"loss": float(loss.detach()), **parts})
+            if self.log is not None:
+                rec = {"step": self.step, **means, "grad_norm": grad, **(extra or {})}
+                rec["seconds"] = round(time.perf_counter() - self.t0, 1)
+                self.log.write(json.dumps(rec) + "\n")
+                self.log.flush()
+        if self.dist.is_main and (
+            self.step % self.cfg.save_every == 0 or self.step == self.cfg.steps
+        ):
+            save_checkpoint(
+                self.out, self.step, self.weights_fn(), {"optimizer": self.opt.state_dict()}
+            )
+
+    def close(self) -> None:
+        self.bar.close()
+        if self.log is not None:
+            self.log.close()
+        self.dist.barrier()
+
+
+@torch.no_grad()
+def validate_improver(model: ImproveModel, data, method: str, device, limit: int = 64) -> dict:
+    """Mean PSNR of raw renders and of enhanced ones on the first ``limit`` curated samples."""
+    from prosplat.metrics import psnr
+
+    was = model.training
+    model.eval()
+    idx = torch.arange(min(limit, data["render"].shape[0]))
+    raw, ref, fund, gt = curated_batch(data, idx, method, device)
+    enh = torch.cat(
+        [model(raw[i : i + 8], ref[i : i + 8], fund[i : i + 8]) for i in range(0, len(idx), 8)]
+    )
+    model.train(was)
+    return {
+        "val_psnr_raw": float(torch.stack([psnr(raw[i], gt[i]) for i in range(len(idx))]).mean()),
+        "val_psnr": float(torch.stack([psnr(enh[i], gt[i]) for i in range(len(idx))]).mean()),
+    }
+
+
+def train_improve(cfg: ImproveTrainConfig, progress: bool = True, model_config=None) -> Path:
+    """Train (or resume) an improvement model into ``cfg.out``; returns ``improve.safetensors``."""
+    from prosplat.metrics import LPIPS
+
+    dist = setup_distributed(cfg.device)
+    device = dist.device
+    torch.manual_seed(cfg.seed)
+    if cfg.init:
+        model = load_improver(cfg.init)
+    else:
+        base = model_config or preset(cfg.config)
+        model = ImproveModel(
+            base.with_(timestep=cfg.timestep, denoise=cfg.denoise, reference=cfg.reference)
+        )
+    model.to(device).train()
+    data = load_curated(cfg.data)
+    val = load_curated(cfg.val) if cfg.val and dist.is_main else None
+    params = [p for p in model.parameters() if p.requires_grad]
+    run = _Run(cfg, dist, params, model.state_dict, progress, "train improve")
+    if run.resumed is not None:
+        model.load_state_dict(run.resumed.weights)
+    net = dist.wrap(model)
+    lpips_fn = LPIPS().to(device) if cfg.lpips_weight > 0 else None
+    n = data["render"].shape[0]
+    try:
+        while run.step < cfg.steps:
+            _, idx = step_indices(n, cfg.batch, cfg.seed, run.step, dist.rank, dist.world_size)
+            raw, ref, fund, gt = curated_batch(
+                data, torch.tensor(idx), cfg.reference_method, device
+            )
+            loss, parts = enhance_loss(net(raw, ref, fund), gt, lpips_fn, cfg.lpips_weight)
+            extra = {}
+            if val is not None and (run.step + 1) % cfg.val_every == 0:
+                extra = validate_improver(model, val, cfg.reference_method, device)
+            run.advance(loss, params, parts, extra)
+    finally:
+        run.close()
+    final = Path(cfg.out) / "improve.safetensors"
+    if dist.is_main:
+        cmd = f"prosplat train improve {json.dumps(asdict(cfg))}"
+        save_improver(model.cpu(), final, overwrite=True, command=cmd, steps=str(run.step))
+    dist.close()
+    return final
+
+
+def joint_parameters(pipe, improver: ImproveModel, train_decoder: bool) -> list[Tensor]:
+    """Freeze everything but the generator's Gaussian adapter and the improvement model's VAE
+    encoder (+ decoder and its skip convolutions with ``train_decoder``); returns what trains."""
+    pipe.generator.requires_grad_(False)
+    improver.requires_grad_(False)
+    parts = [pipe.generator.adapter, improver.vae.encoder]
+    if improver.vae.quant_conv is not None:
+        parts.append(improver.vae.quant_conv)
+    if train_decoder:
+        parts += [improver.vae.decoder, improver.skip_convs]
+        if improver.vae.post_quant_conv is not None:
+            parts.append(improver.vae.post_quant_conv)
+    for m in parts:
+        m.requires_grad_(True)
+    return [p for m in parts for p in m.parameters()]
+
+
+def train_joint(cfg: JointTrainConfig, progress: bool = True) -> tuple[Path, Path]:
+    """Joint fine-tuning; returns (generator checkpoint, improvement checkpoint)."""
+    from prosplat.data import SceneDataset
+    from prosplat.improve.epipolar import fundamental_matrix
+    from prosplat.improve.mori import select_reference
+    from prosplat.metrics import LPIPS
+    from prosplat.pipeline import ProSplat
+    from prosplat.render import render
+    from prosplat.train.generator import batch_cameras
+
+    dist = setup_distributed(cfg.device)
+    device = dist.device
+    torch.manual_seed(cfg.seed)
+    pipe = ProSplat.from_pretrained(cfg.generator, improve=cfg.improver, device=device)
+    gen, imp = pipe.generator, pipe.improver
+    params = joint_parameters(pipe, imp, cfg.train_decoder)
+
+    def weights() -> dict[str, Tensor]:
+        return {**{f"generator.{k}": v for k, v in gen.state_dict().items()},
+                **{f"improver.{k}": v for k, v in imp.state_dict().items()}}  # fmt: skip
+
+    run = _Run(cfg, dist, params, weights, progress, "train joint")
+    if run.resumed is not None:
+        w = run.resumed.weights
+        gen.load_state_dict({k[10:]: v for k, v in w.items() if k.startswith("generator.")})
+        imp.load_state_dict({k[9:]: v for k, v in w.items() if k.startswith("improver.")})
+    gen.train()
+    imp.train()
+    lpips_fn = LPIPS().to(device)
+    ds = SceneDataset(cfg.data, n_inputs=cfg.inputs, n_targets=cfg.targets, seed=cfg.seed)
+    bg = torch.zeros(3, device=device)
+    try:
+        while run.step < cfg.steps:
+            _, idx = step_indices(len(ds), 1, cfg.seed, run.step, dist.rank, dist.world_size)
+            item = {k: v.to(device) if isinstance(v, Tensor) else v for k, v in ds[idx[0]].items()}
+            h, w = item["input_images"].shape[-2:]
+            out = gen(item["input_images"][None], item["input_K"][None], item["input_w2c"][None],
+                      item["near"][None], item["far"][None])  # fmt: skip
+            gaussians = out.gaussians(0)
+            in_cams = batch_cameras(item["input_K"], item["input_w2c"], w, h)
+            tgt_cams = batch_cameras(item["target_K"], item["target_w2c"], w, h)
+            raws, refs, funds = [], [], []
+            for cam in tgt_cams:
+                raws.append(render(gaussians, cam, background=bg).rgb)
+                j = select_reference(cam, in_cams, method=cfg.reference_method)
+                refs.append(item["input_images"][j])
+                funds.append(fundamental_matrix(cam, in_cams[j]).float().to(device))
+            enhanced = imp(torch.stack(raws), torch.stack(refs), torch.stack(funds))
+            gt = item["target_images"]
+            loss, parts = enhance_loss(enhanced, gt, lpips_fn, cfg.lpips_weight)
+            run.advance(loss * len(tgt_cams), params, parts)  # summed over the target views
+    finally:
+        run.close()
+    out_dir = Path(cfg.out)
+    gen_path, imp_path = out_dir / "generator.safetensors", out_dir / "improve.safetensors"
+    if dist.is_main:
+        pipe.to("cpu")
+        pipe.save(gen_path, overwrite=True)
+        cmd = f"prosplat train joint {json.dumps(asdict(cfg))}"
+        save_improver(imp, imp_path, overwrite=True, command=cmd, steps=str(run.step))
+    dist.close()
+    return gen_path, imp_path

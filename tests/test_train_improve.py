@@ -1,0 +1,129 @@
+"""Stage-2 curation, independent training and joint training on tiny synthetic scenes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+from synthetic_scenes import write_synthetic_scene
+
+from prosplat import ProSplat
+from prosplat.generator import GeneratorConfig
+from prosplat.improve.config import ImproveConfig
+from prosplat.improve.io import load_improver, save_improver
+from prosplat.improve.model import ImproveModel
+from prosplat.train.curate import curate, curated_batch, load_curated
+from prosplat.train.improve import (
+    ImproveTrainConfig,
+    JointTrainConfig,
+    joint_parameters,
+    train_improve,
+    train_joint,
+)
+
+SMALL = ImproveConfig(
+    vae_channels=(16, 16),
+    vae_groups=8,
+    unet_channels=(16, 16, 16),
+    unet_groups=8,
+    cross_attention_dim=16,
+)
+GEN = GeneratorConfig(feature_channels=16, num_depth_candidates=8, attention_layers=1,
+                      mono_channels=8, mono_blocks=1, unet_channels=(8, 8, 8), refine_channels=8)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("improve")
+    for k in range(2):
+        write_synthetic_scene(root / "scenes" / f"scene_{k}", size=32, n_views=7)
+    torch.manual_seed(0)
+    gen = ProSplat(GEN)
+    gen_path = gen.save(root / "gen.safetensors")
+    curated = curate(gen, root / "scenes", root / "curated.safetensors", views=(2, 3), progress=False)
+    return root, gen_path, curated
+
+
+def test_curation_stores_render_reference_and_truth(setup) -> None:
+    root, gen_path, curated = setup
+    data = load_curated(curated)
+    # 2 scenes x (2 and 3 inputs) x 3 targets
+    assert data["render"].shape == (12, 3, 32, 32)
+    assert set(data["inputs"].tolist()) == {2, 3}
+    for key in ("target", "ref_paper", "ref_overlap"):
+        assert data[key].shape == data["render"].shape
+    assert data["F_paper"].shape == (12, 3, 3) and torch.isfinite(data["F_paper"]).all()
+    # the stored render is what the generator renders (float16 rounding aside)
+    assert 0 <= float(data["render"].float().min()) and float(data["render"].float().max()) <= 1
+    raw, ref, fund, gt = curated_batch(data, torch.tensor([0, 5]), "overlap", "cpu")
+    assert raw.dtype == torch.float32 and raw.shape == (2, 3, 32, 32)
+    with pytest.raises(FileExistsError):
+        curate(ProSplat.from_pretrained(gen_path, improve=False), root / "scenes", curated, progress=False)
+    with pytest.raises(ValueError, match="reference method"):
+        curated_batch(data, torch.tensor([0]), "nearest", "cpu")
+
+
+def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
+    _, _, curated = setup
+    cfg = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "run"), val=str(curated), steps=4,
+                             batch=4, save_every=2, log_every=1, val_every=2, lpips_weight=1.0,
+                             device="cpu")  # fmt: skip
+    path = train_improve(cfg, progress=False, model_config=SMALL)
+    model = load_improver(path)
+    assert model.config == SMALL.with_(timestep=199)
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2, 3, 4]
+    assert "val_psnr" in log[1] and "val_psnr_raw" in log[1]
+    # resume to 6 steps: continues at step 4
+    cfg6 = ImproveTrainConfig(**{**cfg.__dict__, "steps": 6})
+    train_improve(cfg6, progress=False, model_config=SMALL)
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log][-2:] == [5, 6]
+
+
+def test_training_lowers_the_loss(setup, tmp_path) -> None:
+    _, _, curated = setup
+    data = load_curated(curated)
+    cfg = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "r"), steps=30, batch=12, lr=2e-3,
+                             warmup=1, lpips_weight=0.0, save_every=100, device="cpu")  # fmt: skip
+    torch.manual_seed(0)
+    path = train_improve(cfg, progress=False, model_config=SMALL)
+    raw, ref, fund, gt = curated_batch(data, torch.arange(12), "paper", "cpu")
+    with torch.no_grad():
+        after = (load_improver(path)(raw, ref, fund) - gt).square().mean()
+    before = (raw - gt).square().mean()  # the untrained model is the identity
+    assert after < before
+
+
+def test_joint_training_changes_only_adapter_and_vae(setup, tmp_path) -> None:
+    root, gen_path, _ = setup
+    torch.manual_seed(0)
+    imp = ImproveModel(SMALL)
+    torch.nn.init.normal_(imp.vae.decoder.conv_out.weight, std=0.05)  # as after stage-2 training
+    imp_path = save_improver(imp, tmp_path / "imp.safetensors")
+    cfg = JointTrainConfig(data=str(root / "scenes"), out=str(tmp_path / "joint"), generator=str(gen_path),
+                           improver=str(imp_path), steps=2, inputs=2, targets=2, lr=1e-3, warmup=1,
+                           lpips_weight=0.5, save_every=1, log_every=1, train_decoder=False,
+                           device="cpu")  # fmt: skip
+    g_out, i_out = train_joint(cfg, progress=False)
+    before_g = ProSplat.from_pretrained(gen_path, improve=False).generator.state_dict()
+    after_g = ProSplat.from_pretrained(g_out, improve=False).generator.state_dict()
+    changed = {k for k in before_g if not torch.equal(before_g[k], after_g[k])}
+    assert changed and all(k.startswith("adapter.") for k in changed)
+    before_i, after_i = load_improver(imp_path).state_dict(), load_improver(i_out).state_dict()
+    changed = {k for k in before_i if not torch.equal(before_i[k], after_i[k])}
+    assert changed and all(k.startswith(("vae.encoder.", "vae.quant_conv.")) for k in changed)
+
+
+@pytest.mark.parametrize("decoder", [False, True])
+def test_joint_parameters_freeze_the_rest(decoder: bool) -> None:
+    pipe = ProSplat(GEN)
+    imp = ImproveModel(SMALL)
+    params = {id(p) for p in joint_parameters(pipe, imp, decoder)}
+    names = [n for n, p in imp.named_parameters() if id(p) in params]
+    assert any(n.startswith("vae.encoder.") for n in names)
+    assert any(n.startswith("vae.decoder.") for n in names) == decoder
+    assert not any(n.startswith(("unet.", "dwea.")) for n in names)
+    gen_names = [n for n, p in pipe.generator.named_parameters() if p.requires_grad]
+    assert gen_names and all(n.startswith("adapter.") for n in gen_names)
