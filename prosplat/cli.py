@@ -268,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
         "the CPU: run as is; several GPUs: torchrun --nproc_per_node K -m prosplat "
         "train generator ...",
     )
-    from prosplat.train.generator import TrainConfig
+    from prosplat.train.generator import TrainConfig, parse_inputs
 
     defaults = TrainConfig(data="", out="")
     tg.add_argument("--data", required=True, help="training dataset folder")
@@ -278,7 +278,6 @@ def build_parser() -> argparse.ArgumentParser:
     for name in (
         "steps",
         "batch",
-        "inputs",
         "targets",
         "warmup",
         "log_every",
@@ -302,8 +301,18 @@ def build_parser() -> argparse.ArgumentParser:
             default=getattr(defaults, name),
             help=f"(default {getattr(defaults, name)})",
         )
+    tg.add_argument(
+        "--inputs",
+        type=parse_inputs,
+        default=defaults.inputs,
+        help="input views per step: a count 2-6, or a set like 2,4,6 drawn from each step "
+        f"(default {defaults.inputs})",
+    )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)
+    from prosplat.cli_improve import add_eval_parser, add_train_parsers
+
+    add_train_parsers(train_sub)
 
     ev = sub.add_parser("eval", help="evaluate models on rendered test scenes")
     ev_sub = ev.add_subparsers(dest="eval_command", required=True)
@@ -342,6 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
     eg.add_argument("--no-generator", action="store_true", help="baselines only")
     eg.add_argument("--out", type=Path, default=Path("out/eval"), help="where scores go")
     eg.set_defaults(func=cmd_eval_generator)
+    add_eval_parser(ev_sub)
     return parser
 
 

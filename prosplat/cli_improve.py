@@ -1,0 +1,160 @@
+"""The stage-2 subcommands: ``prosplat train curate|improve|joint`` and ``prosplat eval improve``.
+
+Kept apart from :mod:`prosplat.cli` so each file stays small; ``cli.build_parser`` calls
+:func:`add_train_parsers` and :func:`add_eval_parser`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import asdict, fields
+from pathlib import Path
+
+
+def _add_config_args(parser: argparse.ArgumentParser, cls, skip: set[str]) -> None:
+    """One ``--option`` per dataclass field with its default (bools become --flag/--no-flag)."""
+    defaults = cls(**{f.name: "" for f in fields(cls) if f.name in skip})
+    for f in fields(cls):
+        if f.name in skip:
+            continue
+        value = getattr(defaults, f.name)
+        flag = f"--{f.name.replace('_', '-')}"
+        if isinstance(value, bool):
+            parser.add_argument(
+                flag, dest=f.name, action=argparse.BooleanOptionalAction, default=value
+            )
+        else:
+            kind = type(value) if value is not None else str
+            parser.add_argument(
+                flag, dest=f.name, type=kind, default=value, help=f"(default {value})"
+            )
+
+
+def cmd_curate(args: argparse.Namespace) -> int:
+    from prosplat.pipeline import ProSplat
+    from prosplat.train.curate import curate
+
+    model = ProSplat.from_pretrained(args.generator, improve=False)
+    views = [int(v) for v in args.views.split(",")]
+    cmd = "prosplat train curate " + " ".join(sys.argv[3:])
+    path = curate(model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd)
+    print(f"curated set: {path.resolve()}")
+    return 0
+
+
+def cmd_train_improve(args: argparse.Namespace) -> int:
+    from prosplat.train.improve import ImproveTrainConfig, train_improve
+
+    cfg = ImproveTrainConfig(**{f.name: getattr(args, f.name) for f in fields(ImproveTrainConfig)})
+    print(f"improvement model: {train_improve(cfg).resolve()}")
+    return 0
+
+
+def cmd_train_joint(args: argparse.Namespace) -> int:
+    from prosplat.train.improve import JointTrainConfig, train_joint
+
+    cfg = JointTrainConfig(**{f.name: getattr(args, f.name) for f in fields(JointTrainConfig)})
+    gen, imp = train_joint(cfg)
+    print(f"generator: {gen.resolve()}\nimprovement model: {imp.resolve()}")
+    return 0
+
+
+def cmd_eval_improve(args: argparse.Namespace) -> int:
+    import torch
+    from tqdm import tqdm
+
+    from prosplat.cli import _fresh_folder
+    from prosplat.data import find_scenes, load_scene
+    from prosplat.evaluate import markdown_table, summarise
+    from prosplat.evaluate_improve import Row, evaluate_rows
+    from prosplat.improve.io import load_improver
+    from prosplat.pipeline import ProSplat
+
+    gen = ProSplat.from_pretrained(args.generator, improve=False)
+    rows = {"generator only": Row(gen)}
+    for spec in args.row:
+        label, _, rest = spec.partition("=")
+        path, _, method = rest.partition(":")
+        generator = gen
+        if "+" in path:  # joint rows: GENERATOR+IMPROVER
+            g_path, path = path.split("+", 1)
+            generator = ProSplat.from_pretrained(g_path, improve=False)
+        rows[label] = Row(generator, load_improver(path), method or "paper")
+    dtype = torch.bfloat16 if args.bf16 else torch.float32
+    scores = []
+    for folder in tqdm(find_scenes(args.data)[: args.scenes], desc="ablation", unit="scene"):
+        scores += evaluate_rows(load_scene(folder, load_depth=False), rows, args.views, dtype)
+    table = markdown_table(summarise(scores))
+    print(table)
+    out = _fresh_folder(args.out, overwrite=False)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scores.json").write_text(json.dumps([asdict(s) for s in scores], indent=1))
+    (out / "summary.md").write_text(table + "\n")
+    print(f"wrote {out / 'summary.md'} and scores.json")
+    return 0
+
+
+def add_train_parsers(train_sub) -> None:
+    from prosplat.train.improve import ImproveTrainConfig, JointTrainConfig
+
+    cu = train_sub.add_parser(
+        "curate",
+        help="render curated stage-2 samples with a trained generator",
+        description="For every scene under --data and every input-view count in --views, "
+        "reconstruct with the generator, render each target view, and store the render, "
+        "the MORI reference (paper score and geometric overlap) with its fundamental "
+        "matrix, and the ground truth in one safetensors file (a cache: not committed).",
+    )
+    cu.add_argument("--data", required=True, help="dataset folder of rendered scenes")
+    cu.add_argument("--out", required=True, help="curated file to write (.safetensors)")
+    cu.add_argument("--generator", default=None, help="generator checkpoint (default: shipped)")
+    cu.add_argument(
+        "--views", default="2,4", help="input-view counts, comma-separated (default 2,4)"
+    )
+    cu.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    cu.set_defaults(func=cmd_curate)
+
+    ti = train_sub.add_parser(
+        "improve",
+        help="train the stage-2 improvement model on a curated set",
+        description="Independent stage-2 training (MSE + 5 LPIPS) on a file from `prosplat train "
+        "curate`. --no-denoise / --no-reference give the ablation rows. Re-running with "
+        "the same --out resumes; several GPUs: torchrun --nproc_per_node K -m prosplat "
+        "train improve ...",
+    )
+    ti.add_argument("--data", required=True, help="curated training file")
+    ti.add_argument("--out", required=True, help="run folder (checkpoints, log.jsonl)")
+    _add_config_args(ti, ImproveTrainConfig, {"data", "out"})
+    ti.set_defaults(func=cmd_train_improve)
+
+    tj = train_sub.add_parser(
+        "joint",
+        help="jointly fine-tune generator adapter + improvement VAE",
+        description="Joint training: the generator frozen but its Gaussian adapter, the "
+        "improvement model frozen but its VAE encoder (and decoder unless --no-train-decoder); "
+        "loss summed over the target views of one forward pass.",
+    )
+    for name in ("data", "out", "generator", "improver"):
+        tj.add_argument(f"--{name}", required=True)
+    _add_config_args(tj, JointTrainConfig, {"data", "out", "generator", "improver"})
+    tj.set_defaults(func=cmd_train_joint)
+
+
+def add_eval_parser(ev_sub) -> None:
+    ei = ev_sub.add_parser(
+        "improve",
+        help="the stage-2 ablation (Table IV) in one run",
+        description="Score 'generator only' and every --row LABEL=IMPROVER[:paper|overlap] "
+        "(or LABEL=GENERATOR+IMPROVER for jointly trained pairs) on the same scenes, "
+        "input views and targets; one table per view count and target kind.",
+    )
+    ei.add_argument("--data", type=Path, required=True, help="test dataset folder")
+    ei.add_argument("--generator", default=None, help="generator checkpoint (default: shipped)")
+    ei.add_argument("--row", action="append", default=[], help="LABEL=PATH[:paper|overlap]")
+    ei.add_argument("--views", type=int, nargs="+", default=[2, 4, 6], help="input-view counts")
+    ei.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
+    ei.add_argument("--bf16", action="store_true", help="run stage 2 under bfloat16 autocast")
+    ei.add_argument("--out", type=Path, default=Path("out/eval-improve"), help="where scores go")
+    ei.set_defaults(func=cmd_eval_improve)
