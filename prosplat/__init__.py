@@ -4,7 +4,10 @@ The library never imports ``bpy``; the Blender add-on (``addon/``) is a thin lay
 """
 
 from prosplat.camera import Camera, CameraBatch, stack_cameras
+from prosplat.enhance import EnhancedView
 from prosplat.gaussians import Gaussians
+from prosplat.improve.epipolar import fundamental_matrix
+from prosplat.improve.mori import mori_scores, overlap_scores, select_reference
 from prosplat.pipeline import ProSplat
 from prosplat.ply import read_ply, write_ply
 from prosplat.render import RenderOutput, render
@@ -12,11 +15,16 @@ from prosplat.render import RenderOutput, render
 __all__ = [
     "Camera",
     "CameraBatch",
+    "EnhancedView",
     "Gaussians",
     "ProSplat",
     "RenderOutput",
+    "fundamental_matrix",
+    "mori_scores",
+    "overlap_scores",
     "read_ply",
     "render",
+    "select_reference",
     "stack_cameras",
     "write_ply",
 ]
