@@ -2,8 +2,9 @@
 
 For each test scene (all its input views), the generator's Gaussians are rendered into every
 target view unpruned, with the automatic budget (transparent / out-of-bounds / cross-view
-duplicates removed), and with fixed fractions of the unpruned count. Render times are
-medians of --repeats renders per view, all configurations measured in the same run.
+duplicates removed; the default duplicate test and a looser one, to show what its tolerance
+buys), and with fixed fractions of the unpruned count. Render times are medians of
+--repeats renders per view, all configurations measured in the same run.
 
     python benchmarks/budget.py --data data/test --weights runs/tiny/checkpoint.safetensors
 
@@ -26,13 +27,16 @@ from prosplat.metrics import psnr
 from prosplat.pipeline import ProSplat
 from prosplat.render import render
 
-SETTINGS: list[tuple[str, float | None | str]] = [
-    ("unpruned", "none"),
-    ("auto", None),
-    ("0.5", 0.5),
-    ("0.3", 0.3),
-    ("0.2", 0.2),
-    ("0.1", 0.1),
+#: (label, prune_gaussians keyword arguments; None = unpruned)
+SETTINGS: list[tuple[str, dict | None]] = [
+    ("unpruned", None),
+    ("auto", {}),
+    ("auto, loose dedup (5 %, 4 px)", {"dedup_tol": 0.05, "dedup_px": 4.0}),
+    ("auto, no dedup", {"dedup_tol": None}),
+    ("0.5", {"budget": 0.5}),
+    ("0.3", {"budget": 0.3}),
+    ("0.2", {"budget": 0.2}),
+    ("0.1", {"budget": 0.1}),
 ]
 
 
@@ -58,11 +62,11 @@ def main() -> None:
         out = model.reconstruct_full(sc.images[ins], cams, near, far)
         g_all, depths = out.gaussians(0), out.depths[0]
         view_index = torch.arange(len(ins)).repeat_interleave(depths.shape[1] * depths.shape[2])
-        for label, budget in SETTINGS:
+        for label, kwargs in SETTINGS:
             g = (
                 g_all
-                if budget == "none"
-                else prune_gaussians(g_all, view_index, depths, cams, budget=budget)[0]
+                if kwargs is None
+                else prune_gaussians(g_all, view_index, depths, cams, **kwargs)[0]
             )
             acc[label]["n"].append(len(g))
             for t in sc.target_indices:

@@ -11,11 +11,16 @@ in this order, each Gaussian counted under the first reason that removes it:
 2. **out of bounds**: outside the given AABB, or, when ``near``/``far`` are given, at a
    depth outside [near, far] in any camera whose image it falls in (e.g. a floater just in
    front of another camera's lens), or in no camera's image at all.
-3. **duplicate**: a Gaussian of view j whose mean projects (nearest pixel) into an earlier
-   view i < j onto a pixel whose depth agrees within ``dedup_tol`` (relative) and where view
-   i's own Gaussian survived steps 1-2: that surface is already covered by view i, which
-   keeps its copy. The kept copy is *not* enlarged: view i's Gaussians already tile its
-   pixel grid without holes, and the dropped copy only lay on the same surface.
+3. **duplicate**: two views' Gaussians on one surface. A Gaussian g of view j is projected
+   into every other view i; view i's depth map, read *bilinearly* at that sub-pixel position,
+   agrees with g's depth within ``dedup_tol·z + dedup_px·(g's pixel footprint z/f) + the
+   depth spread of the 2x2 pixels read`` (the spread widens the test on slanted surfaces and
+   at edges, where one pixel spans a range of depths), and view i has a surviving Gaussian
+   at that pixel. Of such a pair the copy from the view that sees the surface at the higher
+   resolution (more pixels per unit length, f/z in its own view; ties: the earlier view)
+   is kept, the coarser one dropped: it is the blurrier estimate of the same surface, and
+   dropping it costs no quality (measured in BENCHMARKS.md, "budget"). The kept copy is *not*
+   enlarged: its view's Gaussians already tile its pixel grid without holes.
 4. **over budget** (only if ``budget`` is given): the survivors are ranked by importance =
    opacity x the area (px²) of the Gaussian's 1σ ellipse in the view it came from, as the
    rasterizer projects it (EWA with its 0.3 px² dilation), i.e. how much of its input image
@@ -136,6 +141,44 @@ def _out_of_bounds(
     return out | ~seen
 
 
+def _bilinear(dmap: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
+    """Bilinear read of ``dmap [H,W]`` at pixel coordinates ``uv [M,2]`` (centres at +0.5,
+    border pixels replicated): the value [M] and the four pixels it mixes [M,4]."""
+    h, w = dmap.shape
+    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5
+    x0, y0 = x.floor().clamp(0, w - 1), y.floor().clamp(0, h - 1)
+    fx, fy = (x - x0).clamp(0, 1), (y - y0).clamp(0, 1)
+    c0, r0 = x0.long(), y0.long()
+    c1, r1 = (c0 + 1).clamp(max=w - 1), (r0 + 1).clamp(max=h - 1)
+    corners = torch.stack([dmap[r0, c0], dmap[r0, c1], dmap[r1, c0], dmap[r1, c1]], dim=-1)
+    top = corners[:, 0] * (1 - fx) + corners[:, 1] * fx
+    bottom = corners[:, 2] * (1 - fx) + corners[:, 3] * fx
+    return top * (1 - fy) + bottom * fy, corners
+
+
+def _resolution(
+    means: Tensor, view_index: Tensor, cameras: list[Camera], alive: Tensor
+) -> tuple[Tensor, list[Tensor]]:
+    """Pixels per unit length (f/z) at each Gaussian in its own view, and per view a map of
+    that value for the view's surviving Gaussian at each pixel (0: no survivor there).
+
+    The maps come from projecting each Gaussian into its own view, so any subset or order of
+    the V·H·W layout works.
+    """
+    res = torch.zeros(means.shape[0], dtype=torch.float64, device=means.device)
+    maps = []
+    for i, cam in enumerate(cameras):
+        idx = torch.nonzero(view_index == i).squeeze(1)
+        col, row, z, inside = cam.nearest_pixels(means[idx])
+        focal = math.sqrt(float(cam.K[0, 0]) * float(cam.K[1, 1]))
+        res[idx] = focal / z.clamp_min(1e-12)
+        flat = torch.zeros(cam.height * cam.width, dtype=torch.float64, device=means.device)
+        ok = inside & alive[idx]
+        flat.scatter_reduce_(0, (row * cam.width + col)[ok], res[idx][ok], reduce="amax")
+        maps.append(flat.reshape(cam.height, cam.width))
+    return res, maps
+
+
 def _duplicates(
     means: Tensor,
     view_index: Tensor,
@@ -143,31 +186,36 @@ def _duplicates(
     cameras: list[Camera],
     alive: Tensor,
     tol: float,
+    px: float,
 ) -> Tensor:
-    """[N] bool: alive Gaussians whose surface an earlier view's alive Gaussian already covers."""
+    """[N] bool: alive Gaussians whose surface another view's alive Gaussian covers at a
+    higher resolution (see rule 3 in the module docstring)."""
     n = means.shape[0]
     dup = torch.zeros(n, dtype=torch.bool, device=means.device)
-    # covered[i][r, c]: view i has a surviving Gaussian at pixel (c, r), found by projecting
-    # each Gaussian into its own view, so any subset or order of the V·H·W layout works.
-    covered = []
-    for i, cam in enumerate(cameras[:-1]):
-        idx = torch.nonzero(alive & (view_index == i)).squeeze(1)
-        col, row, _, inside = cam.nearest_pixels(means[idx])
-        mask = torch.zeros(cam.height, cam.width, dtype=torch.bool, device=means.device)
-        mask[row[inside], col[inside]] = True
-        covered.append(mask)
-    for j in range(1, len(cameras)):
+    res, res_maps = _resolution(means, view_index, cameras, alive)
+    for j in range(len(cameras)):
         idx = torch.nonzero(alive & (view_index == j)).squeeze(1)
         if idx.numel() == 0:
             continue
-        pts = means[idx]
-        hit = torch.zeros(idx.shape[0], dtype=torch.bool, device=means.device)
-        for i in range(j):
-            col, row, z, inside = cameras[i].nearest_pixels(pts)
-            d = depths[i].to(device=means.device, dtype=means.dtype)[row, col]
-            agree = (d > 0) & torch.isfinite(d) & ((d - z).abs() <= tol * z)
-            hit |= inside & covered[i][row, col] & agree
-        dup[idx] = hit
+        for i, cam in enumerate(cameras):
+            if i == j or idx.numel() == 0:
+                continue
+            pts, res_j = means[idx], res[idx]
+            uv, z = cam.project(pts)
+            col, row = uv[:, 0].floor(), uv[:, 1].floor()  # as Camera.nearest_pixels
+            inside = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+            col = col.clamp(0, cam.width - 1).long()
+            row = row.clamp(0, cam.height - 1).long()
+            dmap = depths[i].to(device=means.device, dtype=torch.float64)
+            d, corners = _bilinear(dmap, uv)
+            valid = ((corners > 0) & torch.isfinite(corners)).all(dim=1)
+            spread = (corners - d[:, None]).abs().amax(dim=1)
+            agree = (d - z).abs() <= tol * z + px / res_j + spread
+            res_i = res_maps[i][row, col]  # 0 where view i kept nothing at that pixel
+            finer = (res_i > res_j) | ((res_i == res_j) & (i < j))
+            hit = inside & valid & agree & (res_i > 0) & finer
+            dup[idx[hit]] = True
+            idx = idx[~hit]  # found once is enough: later views test only the rest
     return dup
 
 
@@ -211,7 +259,8 @@ def prune_gaussians(
     bounds: tuple | None = None,
     min_opacity: float = 1.0 / 255.0,
     budget: int | float | None = None,
-    dedup_tol: float = 0.01,
+    dedup_tol: float | None = 0.02,
+    dedup_px: float = 2.0,
 ) -> tuple[Gaussians, Tensor, dict]:
     """Drop the Gaussians a scene does not need (see the module docstring for the rules).
 
@@ -226,7 +275,11 @@ def prune_gaussians(
         min_opacity: Gaussians with a lower opacity are dropped (1/255: lossless).
         budget: None (steps 1-3 only, the automatic default), an int (keep at most this many)
             or a float in (0, 1] (keep at most ``floor(budget * N)``).
-        dedup_tol: relative depth agreement for two views' Gaussians to be one surface.
+        dedup_tol: relative depth agreement for two views' Gaussians to be one surface
+            (None: no duplicate test).
+        dedup_px: further depth slack in units of the Gaussian's pixel footprint z/f, so the
+            test scales with image resolution (a 64² view's pixel spans 4x the depth of a
+            256² view's at the same distance).
 
     Returns:
         The kept Gaussians (in their original order, detached: index the input with keep_mask
@@ -235,8 +288,19 @@ def prune_gaussians(
         ``kept``.
     """
     _check(
-        gaussians, view_index, depths, cameras, near, far, bounds, min_opacity, budget, dedup_tol
+        gaussians,
+        view_index,
+        depths,
+        cameras,
+        near,
+        far,
+        bounds,
+        min_opacity,
+        budget,
+        0.0 if dedup_tol is None else dedup_tol,
     )
+    if not (math.isfinite(dedup_px) and dedup_px >= 0):
+        raise ValueError(f"dedup_px must be a finite non-negative number, got {dedup_px}")
     n = len(gaussians)
     g = gaussians.detach()
     means = g.means.to(torch.float64)
@@ -245,7 +309,9 @@ def prune_gaussians(
     transparent = g.opacities < min_opacity
     oob = _out_of_bounds(means, cameras, near, far, bounds) & ~transparent
     alive = ~transparent & ~oob
-    dup = _duplicates(means, view_index, depths, cameras, alive, dedup_tol)
+    dup = torch.zeros_like(alive)
+    if dedup_tol is not None:
+        dup = _duplicates(means, view_index, depths, cameras, alive, dedup_tol, dedup_px)
     alive &= ~dup
 
     over = torch.zeros_like(alive)

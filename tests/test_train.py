@@ -2,14 +2,30 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import torch
 from synthetic_scenes import write_synthetic_scene
 
-from prosplat import ProSplat
-from prosplat.train.generator import TrainConfig, lr_at, train
+from prosplat import ProSplat, cli
+from prosplat.train.common import (
+    WEIGHTS_NAME,
+    CheckpointError,
+    draw_count,
+    load_checkpoint,
+    pick_device,
+    save_checkpoint,
+    setup_distributed,
+    step_indices,
+    weights_step,
+)
+from prosplat.train.generator import TrainConfig, lr_at, parse_inputs, train
 
 
 @pytest.fixture(scope="module")
@@ -98,3 +114,202 @@ def test_a_run_folder_of_another_run_is_not_overwritten(dataset, tmp_path):
     (out / "train_config.json").write_text("{}")
     with pytest.raises(FileExistsError, match="another run"):
         train(TrainConfig(data=str(dataset), out=str(out), steps=1), progress=False)
+
+
+# ---- variable input-view counts --------------------------------------------------------------
+def test_inputs_accept_a_count_or_a_set():
+    assert parse_inputs("4") == 4 and parse_inputs("6,2,4,2") == (2, 4, 6)
+    assert TrainConfig(data="", out="", inputs="2,4,6").view_counts == (2, 4, 6)
+    assert TrainConfig(data="", out="", inputs=3).view_counts == (3,)
+    assert TrainConfig(data="", out="", inputs=(4, 2)).view_counts == (2, 4)
+    with pytest.raises(ValueError, match="2-6"):
+        TrainConfig(data="", out="", inputs="2,7")
+    with pytest.raises(ValueError, match="comma-separated"):
+        TrainConfig(data="", out="", inputs="two")
+    with pytest.raises(argparse.ArgumentTypeError, match="2-6"):
+        parse_inputs("1")
+
+
+def test_view_counts_drawn_per_step_cover_the_set_and_follow_the_seed():
+    counts = (2, 4, 6)
+    seq = [draw_count(counts, seed=0, step=s) for s in range(60)]
+    assert set(seq) == {2, 4, 6}
+    assert min(seq.count(n) for n in counts) >= 10  # roughly uniform, not stuck on one value
+    assert seq == [draw_count(counts, seed=0, step=s) for s in range(60)]
+    assert seq != [draw_count(counts, seed=1, step=s) for s in range(60)]
+    assert {draw_count((4,), seed=3, step=s) for s in range(10)} == {4}
+
+
+@pytest.fixture(scope="module")
+def wide_dataset(tmp_path_factory):
+    """Scenes with 5 input views, so steps can draw 2 or 4 of them."""
+    root = tmp_path_factory.mktemp("wide")
+    for k in range(2):
+        write_synthetic_scene(root / f"scene_{k}", size=32, n_views=9)
+    return root
+
+
+def test_training_draws_each_steps_view_count_from_the_set(wide_dataset, tmp_path):
+    torch.set_num_threads(1)
+    cfg = TrainConfig(
+        data=str(wide_dataset),
+        out=str(tmp_path / "run"),
+        steps=6,
+        inputs="2,4",
+        targets=1,
+        lpips_weight=0.0,
+        log_every=1,
+        save_every=6,
+        warmup=1,
+        seed=5,
+    )
+    train(cfg, progress=False)
+    log = _log(tmp_path / "run")
+    assert [r["inputs"] for r in log] == [draw_count((2, 4), 5, s) for s in range(6)]
+    assert {r["inputs"] for r in log} == {2, 4}
+
+
+def test_step_indices_shard_one_global_batch_over_ranks():
+    n, batch, world = 10, 2, 2
+    for step in range(12):
+        one = step_indices(n, batch * world, seed=3, step=step)
+        ranks = [
+            step_indices(n, batch, seed=3, step=step, rank=r, world_size=world) for r in (0, 1)
+        ]
+        assert ranks[0][0] == ranks[1][0] == one[0]  # the same epoch
+        assert ranks[0][1] + ranks[1][1] == one[1]  # rank slices concatenate to the batch
+    # An epoch (2 steps of 4 here, the last 2 scenes dropped) never repeats a scene.
+    epoch0 = step_indices(n, 4, 3, 0)[1] + step_indices(n, 4, 3, 1)[1]
+    assert len(set(epoch0)) == 8
+    assert step_indices(n, 4, 3, 2)[0] == 1 and step_indices(n, 4, 3, 2) != step_indices(n, 4, 4, 2)
+    with pytest.raises(ValueError, match="cannot fill one step"):
+        step_indices(3, 2, 0, 0, world_size=2)
+
+
+# ---- checkpoints that survive a crash between their two writes -------------------------------
+def _weights(value: float) -> dict[str, torch.Tensor]:
+    return {"w": torch.full((3,), value)}
+
+
+def test_load_checkpoint_falls_back_to_the_pair_that_agrees(tmp_path):
+    assert load_checkpoint(tmp_path) is None
+    save_checkpoint(tmp_path, 1, _weights(1.0), {"x": torch.tensor(1)})
+    save_checkpoint(tmp_path, 2, _weights(2.0), {"x": torch.tensor(2)})
+    ck = load_checkpoint(tmp_path)
+    assert ck.step == 2 and ck.weights["w"][0] == 2.0 and ck.weights_path.name == WEIGHTS_NAME
+    # A kill after the old weights moved aside, before the new ones landed: no current file.
+    (tmp_path / WEIGHTS_NAME).rename(tmp_path / "checkpoint.prev.safetensors")
+    ck = load_checkpoint(tmp_path)
+    assert ck.step == 2 and ck.weights["w"][0] == 2.0 and int(ck.state["x"]) == 2
+
+
+def test_load_checkpoint_refuses_files_without_a_consistent_pair(tmp_path):
+    save_checkpoint(tmp_path, 4, _weights(4.0), {})
+    (tmp_path / "state.pt").unlink()  # weights of a first save whose state never got written
+    with pytest.raises(CheckpointError, match="no state.pt"):
+        load_checkpoint(tmp_path)
+    torch.save({"step": 9}, tmp_path / "state.pt")  # a state no weights file matches
+    with pytest.raises(CheckpointError, match="step 9.*checkpoint.safetensors: step 4"):
+        load_checkpoint(tmp_path)
+
+
+def test_a_crash_between_the_two_writes_resumes_without_mixing_steps(
+    dataset, tmp_path, monkeypatch
+):
+    torch.set_num_threads(1)  # bit-for-bit comparable runs
+
+    def config(out, steps):
+        return TrainConfig(
+            data=str(dataset),
+            out=str(out),
+            steps=steps,
+            inputs=2,
+            targets=1,
+            lpips_weight=0.0,
+            log_every=1,
+            save_every=1,
+            warmup=1,
+            lr=1e-3,
+        )
+
+    straight = load_checkpoint(train(config(tmp_path / "straight", 4), progress=False).parent)
+    crashed = tmp_path / "crashed"
+    train(config(crashed, 2), progress=False)
+
+    def killed(*args, **kwargs):  # the process dies after the step-3 weights are in place
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", killed)
+    with pytest.raises(KeyboardInterrupt):
+        train(config(crashed, 4), progress=False)
+    monkeypatch.undo()
+    assert weights_step(crashed / WEIGHTS_NAME) == 3
+    assert torch.load(crashed / "state.pt", weights_only=True)["step"] == 2
+    ck = load_checkpoint(crashed)
+    assert ck.step == 2 and ck.weights_path.name == "checkpoint.prev.safetensors"
+
+    with pytest.warns(UserWarning, match="interrupted save"):
+        train(config(crashed, 4), progress=False)
+    assert [r["step"] for r in _log(crashed)] == [1, 2, 3, 4]  # step 3 logged once
+    resumed = load_checkpoint(crashed)
+    assert resumed.step == 4
+    # Data order is a function of (seed, step): the resumed run equals the uninterrupted one.
+    for k, v in straight.weights.items():
+        torch.testing.assert_close(resumed.weights[k], v, rtol=0, atol=1e-6)
+
+
+# ---- several processes under torchrun (gloo on the CPU) --------------------------------------
+def test_torchrun_two_cpu_processes_equal_one_process_with_twice_the_batch(wide_dataset, tmp_path):
+    """2 gloo processes x batch 1 take the same steps as 1 process x batch 2; only rank 0
+    writes (one log line per step, one checkpoint pair, nothing half-written)."""
+    args = [
+        "train", "generator", "--data", str(wide_dataset), "--steps", "3", "--inputs", "2,4",
+        "--targets", "1", "--lpips-weight", "0", "--save-every", "2", "--warmup", "1",
+        "--log-every", "1", "--device", "cpu",
+    ]  # fmt: skip
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    run = subprocess.run(
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]
+        + ["-m", "prosplat", *args, "--batch", "1", "--out", str(tmp_path / "ddp")],
+        cwd=repo,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    torch.set_num_threads(1)
+    with pytest.raises(SystemExit) as done:
+        cli.main([*args, "--batch", "2", "--out", str(tmp_path / "one")])
+    assert done.value.code == 0
+
+    ddp, one = tmp_path / "ddp", tmp_path / "one"
+    assert [r["step"] for r in _log(ddp)] == [1, 2, 3]
+    assert [r["inputs"] for r in _log(ddp)] == [r["inputs"] for r in _log(one)]
+    for a, b in zip(_log(ddp), _log(one)):
+        assert a["loss"] == pytest.approx(b["loss"], rel=1e-5)  # the mean over both ranks
+    assert sorted(p.name for p in ddp.iterdir()) == sorted(
+        ["checkpoint.safetensors", "checkpoint.prev.safetensors", "state.pt"]
+        + ["log.jsonl", "train_config.json"]
+    )
+    assert weights_step(ddp / WEIGHTS_NAME) == 3
+    pipe = ProSplat.from_pretrained(ddp / WEIGHTS_NAME)
+    ref = ProSplat.from_pretrained(one / WEIGHTS_NAME)
+    for (k, a), b in zip(pipe.generator.state_dict().items(), ref.generator.state_dict().values()):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-5, msg=k)
+
+
+def _log(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+
+
+def test_devices_follow_the_local_rank_and_one_process_needs_no_group(monkeypatch):
+    monkeypatch.setenv("LOCAL_RANK", "1")
+    assert pick_device("cuda") == torch.device("cuda", 1)  # not every rank on GPU 0
+    assert pick_device("cuda:0") == torch.device("cuda", 0) and pick_device("cpu").type == "cpu"
+    monkeypatch.delenv("WORLD_SIZE", raising=False)
+    single = setup_distributed("cpu")
+    assert (single.rank, single.world_size, single.is_main) == (0, 1, True)
+    lin = torch.nn.Linear(1, 1)
+    assert single.mean_all({"loss": 2.5}) == {"loss": 2.5} and single.wrap(lin) is lin

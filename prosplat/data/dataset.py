@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import random
+from collections import OrderedDict
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -25,6 +27,25 @@ def find_scenes(root: str | Path) -> list[Path]:
     return sorted(p.parent for p in root.glob("*/transforms.json"))
 
 
+class ItemKey(NamedTuple):
+    """An index that also fixes the epoch and the number of input views of one item.
+
+    A training loop passes these through a batch sampler so that every item of a step shares
+    one view count and the draw does not depend on ``set_epoch`` having reached the worker
+    processes of a DataLoader.
+    """
+
+    index: int
+    epoch: int
+    n_inputs: int
+
+
+def _check_inputs(n_inputs: int) -> int:
+    if not 2 <= n_inputs <= 6:
+        raise ValueError(f"n_inputs must be 2-6, got {n_inputs}")
+    return n_inputs
+
+
 class SceneDataset(Dataset):
     """Items are dicts of tensors from one scene (default collate stacks them):
 
@@ -32,11 +53,17 @@ class SceneDataset(Dataset):
     ``target_images [M,3,H,W]``, ``target_K``, ``target_w2c``, ``target_depths [M,H,W]``,
     ``input_depths [N,H,W]``, ``near``/``far`` (scalars over the inputs), ``scene`` index.
 
+    Scenes are loaded on demand and kept in a least-recently-used cache of ``cache_size``
+    scenes, so memory stays bounded however many scenes the dataset holds (a 128² scene with
+    12 views and depth is ~2.4 MB; the old keep-everything cache grew to GBs on real sets).
+
     Args:
         roots: dataset folders (or scene folders).
-        n_inputs: views per item, drawn from the scene's input views (2-6).
+        n_inputs: views per item, drawn from the scene's input views (2-6); an
+            :class:`ItemKey` index overrides it per item.
         n_targets: targets per item, drawn from its target views.
-        seed: sampling is a pure function of (seed, epoch, index).
+        seed: sampling is a pure function of (seed, epoch, index, n_inputs).
+        cache_size: scenes kept in memory (0 = load every item from disk).
     """
 
     def __init__(
@@ -45,15 +72,17 @@ class SceneDataset(Dataset):
         n_inputs: int = 2,
         n_targets: int = 1,
         seed: int = 0,
+        cache_size: int = 32,
     ):
         roots = [roots] if isinstance(roots, (str, Path)) else roots
         self.folders = [f for r in roots for f in find_scenes(r)]
         if not self.folders:
             raise FileNotFoundError(f"no scenes (folders with transforms.json) under {roots}")
-        if not 2 <= n_inputs <= 6:
-            raise ValueError(f"n_inputs must be 2-6, got {n_inputs}")
-        self.n_inputs, self.n_targets, self.seed, self.epoch = n_inputs, n_targets, seed, 0
-        self._cache: dict[int, SceneData] = {}
+        if cache_size < 0:
+            raise ValueError(f"cache_size must be >= 0 scenes, got {cache_size}")
+        self.n_inputs = _check_inputs(n_inputs)
+        self.n_targets, self.seed, self.epoch, self.cache_size = n_targets, seed, 0, cache_size
+        self._cache: OrderedDict[int, SceneData] = OrderedDict()
 
     def set_epoch(self, epoch: int) -> None:
         """Draw different subsets each epoch (still reproducible)."""
@@ -62,21 +91,40 @@ class SceneDataset(Dataset):
     def __len__(self) -> int:
         return len(self.folders)
 
-    def scene(self, index: int) -> SceneData:
-        if index not in self._cache:
-            self._cache[index] = load_scene(self.folders[index])
-        return self._cache[index]
+    @property
+    def cached(self) -> tuple[int, ...]:
+        """Indices of the scenes in memory, least recently used first."""
+        return tuple(self._cache)
 
-    def __getitem__(self, index: int) -> dict[str, Tensor]:
+    def scene(self, index: int) -> SceneData:
+        """Scene ``index``, from the cache or loaded now (evicting the least recently used)."""
+        sc = self._cache.get(index)
+        if sc is not None:
+            self._cache.move_to_end(index)
+            return sc
+        sc = load_scene(self.folders[index])
+        if self.cache_size > 0:
+            self._cache[index] = sc
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
+        return sc
+
+    def __getitem__(self, key: int | ItemKey) -> dict[str, Tensor]:
+        if isinstance(key, tuple):
+            index, epoch, n_inputs = ItemKey(*key)
+            _check_inputs(n_inputs)
+        else:
+            index, epoch, n_inputs = int(key), self.epoch, self.n_inputs
         sc = self.scene(index)
-        rng = random.Random(hash((self.seed, self.epoch, index)))
+        # A string seed: the same draw on every platform and Python build (no hash()).
+        rng = random.Random(f"prosplat-item/{self.seed}/{epoch}/{index}/{n_inputs}")
         ins, tgs = sc.input_indices, sc.target_indices
-        if len(ins) < self.n_inputs or len(tgs) < self.n_targets:
+        if len(ins) < n_inputs or len(tgs) < self.n_targets:
             raise ValueError(
                 f"{sc.folder}: has {len(ins)} inputs / {len(tgs)} targets, the dataset asks for "
-                f"{self.n_inputs} / {self.n_targets}; render scenes with more views"
+                f"{n_inputs} / {self.n_targets}; render scenes with more views"
             )
-        inp = sorted(rng.sample(ins, self.n_inputs))
+        inp = sorted(rng.sample(ins, n_inputs))
         tgt = sorted(rng.sample(tgs, self.n_targets))
 
         def cams(idx: list[int]) -> tuple[Tensor, Tensor]:

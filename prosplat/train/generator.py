@@ -1,19 +1,50 @@
 """Training the stage-1 generator on Blender-rendered scenes.
 
-One script for the CPU, one GPU, or several (``torchrun --nproc_per_node K -m prosplat
-train generator ...``: torch.distributed with DDP; each process takes its own shard of the
-scenes). The loss renders the target views from the predicted Gaussians with the
-differentiable rasterizer: MSE + λ·LPIPS (+ optional SSIM and depth terms against Blender's
-depth). Checkpoints are resumable; every step is logged to ``log.jsonl``; seeds are fixed.
+One script for the CPU, one GPU, or several. The loss renders the target views from the
+predicted Gaussians with the differentiable rasterizer: MSE + λ·LPIPS (+ optional SSIM and
+depth terms against Blender's depth). Every step is logged to ``log.jsonl``; seeds are fixed.
+
+Launch commands (the same script; re-running with the same ``--out`` resumes)::
+
+    # CPU (or the one GPU if CUDA is available; --device picks explicitly)
+    prosplat train generator --data data/train128 --val data/val128 --out runs/tiny128 \\
+        --config tiny --inputs 2,4,6 --batch 2
+    # one GPU
+    prosplat train generator --device cuda --data ... --out ... --batch 4
+    # several GPUs on one machine (NCCL): K processes, each its own GPU and shard
+    torchrun --standalone --nproc_per_node K -m prosplat train generator --data ... --batch 4
+    # several CPU processes (gloo), e.g. to check a distributed setup without a GPU
+    torchrun --standalone --nproc_per_node 2 -m prosplat train generator --device cpu ...
+
+What K processes compute: ``--batch`` is per process, so one step trains on ``K·batch``
+scenes. Step ``s`` uses a seeded permutation of the scenes cut into global batches of
+``K·batch`` (:func:`prosplat.train.common.step_indices`); rank ``r`` takes the ``r``-th slice and
+DDP averages the gradients, so K processes with ``--batch B`` take the same steps as one process
+with ``--batch K·B`` (up to float summation order; tests/test_train.py checks this with 2 gloo
+processes). The learning rate is not scaled with K. Only rank 0 writes checkpoints, the log and
+the progress bar; the logged loss is the mean over ranks.
+
+Variable input views: ``--inputs 2,4,6`` draws each step's view count from the set with a RNG
+seeded by (seed, step) (all items of a step share it, every rank draws the same); ``--inputs 2``
+fixes it. Validation scores every count and logs the mean plus ``val_psnr_<N>v`` per count.
+
+Checkpoints (:func:`prosplat.train.common.save_checkpoint`): ``checkpoint.safetensors`` (the
+weights, loadable with ``ProSplat.from_pretrained``; the step is in its metadata) and
+``state.pt`` (optimiser, step, RNG), each written atomically, with the previous weights kept as
+``checkpoint.prev.safetensors``. A resume takes the newest pair whose steps agree, so a kill
+between the two writes continues from the last consistent step, never a mix. Data order and
+view counts are functions of (seed, step), so a resumed run continues the same sequence.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
-import os
 import random
 import time
+import warnings
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -22,6 +53,62 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.render import render
+from prosplat.train.common import (
+    Dist,
+    draw_count,
+    load_checkpoint,
+    pick_device,
+    save_checkpoint,
+    setup_distributed,
+    step_indices,
+    steps_per_epoch,
+    truncate_log,
+)
+
+__all__ = [
+    "TrainConfig",
+    "batch_cameras",
+    "input_counts",
+    "lr_at",
+    "parse_inputs",
+    "pick_device",
+    "render_loss",
+    "train",
+    "validate",
+]
+
+
+def input_counts(value: int | str | Sequence[int]) -> tuple[int, ...]:
+    """The set of input-view counts a run trains on, sorted and de-duplicated.
+
+    Accepts an int (``2``), a comma-separated string (``"2,4,6"``) or a sequence of ints.
+
+    Raises:
+        ValueError: a count outside 2-6 (the generator's range) or text that is not integers.
+    """
+    if isinstance(value, str):
+        try:
+            items = [int(v) for v in value.replace(" ", "").split(",") if v]
+        except ValueError:
+            raise ValueError(
+                f"inputs must be a count 2-6 or a comma-separated set like 2,4,6, got {value!r}"
+            ) from None
+    elif isinstance(value, int):
+        items = [value]
+    else:
+        items = [int(v) for v in value]
+    if not items or any(not 2 <= n <= 6 for n in items):
+        raise ValueError(f"input-view counts must each be 2-6, got {value!r}")
+    return tuple(sorted(set(items)))
+
+
+def parse_inputs(text: str) -> int | tuple[int, ...]:
+    """argparse type for ``--inputs``: ``"4"`` → 4, ``"2,4,6"`` → (2, 4, 6)."""
+    try:
+        counts = input_counts(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return counts[0] if len(counts) == 1 else counts
 
 
 @dataclass(frozen=True)
@@ -33,8 +120,8 @@ class TrainConfig:
     config: str = "tiny"  # generator preset: "tiny" | "base"
     val: str | None = None
     steps: int = 20_000
-    batch: int = 1
-    inputs: int = 2
+    batch: int = 1  # scenes per step per process
+    inputs: int | str | tuple[int, ...] = 2  # a count, or a set drawn from per step
     targets: int = 2
     lr: float = 2e-4
     weight_decay: float = 0.01
@@ -50,13 +137,13 @@ class TrainConfig:
     seed: int = 0
     device: str = "auto"
 
+    def __post_init__(self) -> None:
+        input_counts(self.inputs)  # fail at construction, not at the first step
 
-def pick_device(name: str) -> torch.device:
-    if name != "auto":
-        return torch.device(name)
-    if torch.cuda.is_available():
-        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
-    return torch.device("cpu")
+    @property
+    def view_counts(self) -> tuple[int, ...]:
+        """The view counts steps draw from (one element for a fixed count)."""
+        return input_counts(self.inputs)
 
 
 def batch_cameras(K: Tensor, w2c: Tensor, width: int, height: int) -> list[Camera]:
@@ -69,7 +156,8 @@ def render_loss(
 ) -> tuple[Tensor, dict[str, float]]:
     """Render every target view of every scene in the batch and compare with ground truth.
 
-    Returns the loss and its parts (floats, for the log).
+    Returns the loss (a mean over the batch's target views, so DDP's gradient average over
+    ranks equals one process's mean over the union) and its parts (floats, for the log).
     """
     from prosplat.metrics import ssim
 
@@ -122,75 +210,134 @@ def _model_inputs(batch: dict[str, Tensor]) -> tuple[Tensor, ...]:
 
 
 @torch.no_grad()
-def validate(model, cfg: TrainConfig, device: torch.device) -> dict[str, float]:
-    """PSNR / SSIM / LPIPS on the first ``val_scenes`` validation scenes (fixed subsets)."""
+def validate(model, cfg: TrainConfig, device: torch.device, ds=None) -> dict[str, float]:
+    """PSNR / SSIM / LPIPS on the first ``val_scenes`` validation scenes (fixed subsets).
+
+    With several input-view counts every count is scored on the same scenes: ``val_psnr`` etc.
+    are means over all of them and ``val_psnr_<N>v`` the per-count means, so a curve stays
+    comparable however the counts are drawn in training. ``ds`` reuses a loaded dataset.
+    """
     from prosplat.data import SceneDataset
+    from prosplat.data.dataset import ItemKey
     from prosplat.metrics import lpips, psnr, ssim
 
-    ds = SceneDataset(cfg.val, n_inputs=cfg.inputs, n_targets=cfg.targets, seed=12345)
-    scores: dict[str, list[float]] = {"psnr": [], "ssim": [], "lpips": []}
+    counts = cfg.view_counts
+    if ds is None:
+        ds = SceneDataset(cfg.val, n_inputs=counts[0], n_targets=cfg.targets, seed=12345)
+    result: dict[str, float] = {}
+    totals: dict[str, list[float]] = {"psnr": [], "ssim": [], "lpips": []}
     was_training = model.training
     model.eval()
-    for i in range(min(cfg.val_scenes, len(ds))):
-        item = _to({k: v[None] for k, v in ds[i].items()}, device)
-        out = model(*_model_inputs(item))
-        g = out.gaussians(0)
-        h, w = item["target_images"].shape[-2:]
-        for j, cam in enumerate(batch_cameras(item["target_K"][0], item["target_w2c"][0], w, h)):
-            pred = render(g, cam).rgb.clamp(0, 1)
-            gt = item["target_images"][0, j]
-            scores["psnr"].append(float(psnr(pred, gt)))
-            scores["ssim"].append(float(ssim(pred, gt)))
-            scores["lpips"].append(float(lpips(pred, gt)) if min(h, w) >= 32 else float("nan"))
+    for n in counts:
+        scores: dict[str, list[float]] = {"psnr": [], "ssim": [], "lpips": []}
+        for i in range(min(cfg.val_scenes, len(ds))):
+            item = _to({k: v[None] for k, v in ds[ItemKey(i, 0, n)].items()}, device)
+            out = model(*_model_inputs(item))
+            g = out.gaussians(0)
+            h, w = item["target_images"].shape[-2:]
+            cams = batch_cameras(item["target_K"][0], item["target_w2c"][0], w, h)
+            for j, cam in enumerate(cams):
+                pred = render(g, cam).rgb.clamp(0, 1)
+                gt = item["target_images"][0, j]
+                scores["psnr"].append(float(psnr(pred, gt)))
+                scores["ssim"].append(float(ssim(pred, gt)))
+                lp = float(lpips(pred, gt)) if min(h, w) >= 32 else float("nan")
+                scores["lpips"].append(lp)
+        for k, v in scores.items():
+            totals[k] += v
+            if len(counts) > 1:
+                result[f"val_{k}_{n}v"] = sum(v) / max(1, len(v))
     model.train(was_training)
-    return {f"val_{k}": sum(v) / max(1, len(v)) for k, v in scores.items()}
+    return {**{f"val_{k}": sum(v) / max(1, len(v)) for k, v in totals.items()}, **result}
+
+
+class _StepBatches:
+    """Batch sampler over global steps ``first..last-1``: each batch is this rank's
+    :class:`~prosplat.data.dataset.ItemKey` list for that step (scenes from
+    :func:`step_indices`, one view count from :func:`draw_count`)."""
+
+    def __init__(self, n_items: int, cfg: TrainConfig, first: int, dist: Dist) -> None:
+        self.n_items, self.cfg, self.first, self.dist = n_items, cfg, first, dist
+
+    def __len__(self) -> int:
+        return max(0, self.cfg.steps - self.first)
+
+    def __iter__(self) -> Iterator[list]:
+        from prosplat.data.dataset import ItemKey
+
+        cfg, d = self.cfg, self.dist
+        for step in range(self.first, cfg.steps):
+            epoch, idx = step_indices(self.n_items, cfg.batch, cfg.seed, step, d.rank, d.world_size)
+            n = draw_count(cfg.view_counts, cfg.seed, step)
+            yield [ItemKey(i, epoch, n) for i in idx]
+
+
+def _weights_metadata(pipe) -> dict[str, str]:
+    """The metadata ``ProSplat.save`` writes, so a training checkpoint loads with
+    ``ProSplat.from_pretrained`` like any other."""
+    from prosplat.pipeline import CHECKPOINT_FORMAT
+
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "config": pipe.config.to_json(),
+        "parameters": json.dumps(pipe.generator.num_parameters()),
+    }
 
 
 def train(cfg: TrainConfig, model_config=None, progress: bool = True) -> Path:
-    """Train (or resume) into ``cfg.out``; returns the path of the final checkpoint."""
-    from safetensors.torch import load_file
-    from torch.utils.data import DataLoader, DistributedSampler, RandomSampler
+    """Train (or resume) into ``cfg.out``; returns the path of the final checkpoint.
+
+    Under torchrun every process calls this; see the module docstring for what they share.
+    """
+    dist = setup_distributed(cfg.device)
+    try:
+        return _train(cfg, model_config, progress, dist)
+    finally:
+        dist.close()
+
+
+def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
+    from torch.utils.data import DataLoader
     from tqdm import tqdm
 
     from prosplat.data import SceneDataset
     from prosplat.generator.config import preset
     from prosplat.pipeline import ProSplat
 
-    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
-    if distributed:
-        torch.distributed.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
-    rank = torch.distributed.get_rank() if distributed else 0
-    device = pick_device(cfg.device)
+    device = dist.device
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    state_path, ckpt_path = out / "state.pt", out / "checkpoint.safetensors"
-    cfg_path = out / "train_config.json"
-    if cfg_path.exists() and not state_path.exists() and rank == 0:
-        raise FileExistsError(
-            f"{out} holds another run's config but no checkpoint; pick a new --out"
-        )
+    cfg_path, log_path = out / "train_config.json", out / "log.jsonl"
     random.seed(cfg.seed)
-    torch.manual_seed(cfg.seed + rank)
+    torch.manual_seed(cfg.seed)  # the same initial weights on every rank (DDP also broadcasts)
 
     pipe = ProSplat(model_config or preset(cfg.config))
     model = pipe.generator.to(device).train()
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    step = 0
-    if state_path.exists():  # resume
-        state = torch.load(state_path, map_location=device, weights_only=True)
-        model.load_state_dict(load_file(str(ckpt_path), device=str(device)))
-        opt.load_state_dict(state["optimizer"])
-        step = int(state["step"])
-        torch.set_rng_state(state["rng"])
-    elif rank == 0:
-        cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
-    ddp_model = (
-        torch.nn.parallel.DistributedDataParallel(
-            model, device_ids=[device.index] if device.type == "cuda" else None
+    ckpt = load_checkpoint(out, map_location=device)  # every rank reads before rank 0 writes
+    if ckpt is None and cfg_path.exists():
+        raise FileExistsError(
+            f"{out} holds another run's config but no checkpoint; pick a new --out"
         )
-        if distributed
-        else model
-    )
+    step = 0
+    if ckpt is not None:
+        model.load_state_dict(ckpt.weights)
+        opt.load_state_dict(ckpt.state["optimizer"])
+        step = ckpt.step
+        torch.set_rng_state(ckpt.state["rng"].cpu())
+        if ckpt.weights_path.name != "checkpoint.safetensors" and dist.is_main:
+            warnings.warn(
+                f"{out}: the newest weights have no matching state (interrupted save); "
+                f"resuming from {ckpt.weights_path.name} at step {step}",
+                stacklevel=2,
+            )
+    dist.barrier()
+    if dist.is_main:
+        if ckpt is None:
+            cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
+        else:
+            truncate_log(log_path, step)
+    ddp_model = dist.wrap(model)
 
     lpips_fn = None
     if cfg.lpips_weight > 0:
@@ -198,26 +345,24 @@ def train(cfg: TrainConfig, model_config=None, progress: bool = True) -> Path:
 
         lpips_fn = LPIPS().to(device)
 
-    ds = SceneDataset(cfg.data, n_inputs=cfg.inputs, n_targets=cfg.targets, seed=cfg.seed)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    epoch = step // max(1, len(ds) // cfg.batch)
-    log = open(out / "log.jsonl", "a") if rank == 0 else None
+    counts = cfg.view_counts
+    ds = SceneDataset(cfg.data, n_inputs=counts[0], n_targets=cfg.targets, seed=cfg.seed)
+    steps_per_epoch(len(ds), cfg.batch, dist.world_size)  # a clear error if a step cannot fill
+    val_ds = None
+    if cfg.val and dist.is_main:
+        val_ds = SceneDataset(cfg.val, n_inputs=counts[0], n_targets=cfg.targets, seed=12345)
+    loader = DataLoader(ds, batch_sampler=_StepBatches(len(ds), cfg, step, dist))
+    log = open(log_path, "a") if dist.is_main else None
     bar = tqdm(
-        total=cfg.steps, initial=step, desc="train generator", disable=not progress or rank != 0
+        total=cfg.steps,
+        initial=step,
+        desc="train generator",
+        disable=not progress or not dist.is_main,
     )
     t_start = time.perf_counter()
-    while step < cfg.steps:
-        ds.set_epoch(epoch)
-        sampler = (
-            DistributedSampler(ds, seed=cfg.seed)
-            if distributed
-            else RandomSampler(ds, generator=gen)
-        )
-        if distributed:
-            sampler.set_epoch(epoch)
-        for batch in DataLoader(ds, batch_size=cfg.batch, sampler=sampler, drop_last=True):
-            if step >= cfg.steps:
-                break
+    try:
+        for batch in loader:
+            n_views = int(batch["input_images"].shape[1])
             batch = _to(batch, device)
             for group in opt.param_groups:
                 group["lr"] = lr_at(step, cfg)
@@ -233,36 +378,39 @@ def train(cfg: TrainConfig, model_config=None, progress: bool = True) -> Path:
             opt.step()
             step += 1
             bar.update(1)
-            bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
-            if log is not None and step % cfg.log_every == 0:
-                rec = {
-                    "step": step,
-                    "loss": float(loss.detach()),
-                    **parts,
-                    "grad_norm": grad_norm,
-                    "lr": lr_at(step - 1, cfg),
-                    "seconds": round(time.perf_counter() - t_start, 1),
-                }
-                if cfg.val and step % cfg.val_every == 0:
-                    rec.update(validate(model, cfg, device))
-                log.write(json.dumps(rec) + "\n")
-                log.flush()
-            if rank == 0 and (step % cfg.save_every == 0 or step == cfg.steps):
+            bar.set_postfix(loss=f"{float(loss.detach()):.4f}", views=n_views)
+            if step % cfg.log_every == 0:
+                means = dist.mean_all({"loss": float(loss.detach()), **parts})  # all ranks
+                if log is not None:
+                    rec = {
+                        "step": step,
+                        **means,
+                        "inputs": n_views,
+                        "grad_norm": grad_norm,
+                        "lr": lr_at(step - 1, cfg),
+                        "seconds": round(time.perf_counter() - t_start, 1),
+                    }
+                    if val_ds is not None and step % cfg.val_every == 0:
+                        rec.update(validate(model, cfg, device, val_ds))
+                    log.write(json.dumps(rec) + "\n")
+                    log.flush()
+            if dist.is_main and (step % cfg.save_every == 0 or step == cfg.steps):
                 _save(pipe, opt, step, out)
-        epoch += 1
-    bar.close()
-    if log is not None:
-        log.close()
-    if distributed:
-        torch.distributed.destroy_process_group()
-    return ckpt_path
+    finally:
+        bar.close()
+        if log is not None:
+            log.close()
+    dist.barrier()  # the final checkpoint exists before any rank returns its path
+    return out / "checkpoint.safetensors"
 
 
 def _save(pipe, opt, step: int, out: Path) -> None:
-    """Checkpoint atomically: weights (safetensors, with the config) and optimiser state."""
-    tmp_state = out / ".state.pt.tmp"
-    pipe.save(out / "checkpoint.safetensors", overwrite=True)
-    torch.save(
-        {"optimizer": opt.state_dict(), "step": step, "rng": torch.get_rng_state()}, tmp_state
+    """Checkpoint: weights (safetensors with the config and step) and optimiser state, written
+    so that a crash at any point leaves a consistent pair (see ``save_checkpoint``)."""
+    save_checkpoint(
+        out,
+        step,
+        pipe.generator.state_dict(),
+        {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()},
+        metadata=_weights_metadata(pipe),
     )
-    os.replace(tmp_state, out / "state.pt")
