@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -157,7 +158,8 @@ def cmd_train_generator(args: argparse.Namespace) -> int:
 
     cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
     path = train(cfg)
-    print(f"checkpoint: {path.resolve()}")
+    if int(os.environ.get("RANK", "0")) == 0:  # once, not once per torchrun process
+        print(f"checkpoint: {path.resolve()}")
     return 0
 
 

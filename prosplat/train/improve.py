@@ -31,6 +31,7 @@ from prosplat.train.common import (
     save_checkpoint,
     setup_distributed,
     step_indices,
+    truncate_log,
 )
 from prosplat.train.curate import curated_batch, load_curated
 
@@ -120,6 +121,8 @@ class _Run:
         if ckpt is not None:
             self.opt.load_state_dict(ckpt.state["optimizer"])
             self.step = ckpt.step
+            if dist.is_main:
+                truncate_log(self.out / "log.jsonl", self.step)
         elif dist.is_main:
             cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
         self.log = open(self.out / "log.jsonl", "a") if dist.is_main else None
