@@ -7,7 +7,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.prosplat-setup
 
-.PHONY: setup demo test test-all bench lint format clean
+.PHONY: setup demo test test-all bench addon lint format clean
 
 setup: $(STAMP)
 
@@ -31,6 +31,9 @@ test-all: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/render.py
+
+addon: $(STAMP)
+	$(PY) scripts/build_addon.py
 
 lint: $(STAMP)
 	$(PY) -m ruff check .

@@ -1,0 +1,251 @@
+"""Run a :mod:`prosplat.worker` task without freezing Blender: a thread or an external process.
+
+Both kinds of :class:`Job` are polled from Blender's main thread (a modal operator's timer, or
+:meth:`Job.wait` in scripts), and neither touches ``bpy``: the task gets plain data in and
+gives plain data back, and only the main thread turns that into Blender objects. So a
+cancelled or failed job never leaves a half-made object behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import runtime
+
+FINISHED = ("done", "error", "cancelled")
+# `python -c _BOOT ROOT JOB`: `python -m prosplat.worker JOB` with ROOT appended to sys.path.
+_BOOT = (
+    "import sys; root = sys.argv[1]; root and sys.path.append(root); "
+    "from prosplat.worker import main; sys.exit(main(sys.argv[2:]))"
+)
+_TERMINATE_AFTER = 5.0  # seconds a cancelled external worker gets to stop by itself
+
+
+def job_paths(job: Path) -> dict[str, Path]:
+    """Status, cancel and result files of a job file: the same names as
+    ``prosplat.worker.paths_for`` (which this module cannot import without torch)."""
+    stem = job.with_suffix("")
+    return {
+        "status": stem.with_name(stem.name + ".status.json"),
+        "cancel": stem.with_name(stem.name + ".cancel"),
+        "arrays": stem.with_name(stem.name + ".result.npz"),
+    }
+
+
+def load_arrays(path: str | Path) -> dict[str, np.ndarray]:
+    with np.load(str(path), allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+class JobError(RuntimeError):
+    """A job failed; the message is meant for the user (``self.report``)."""
+
+
+class JobCancelled(RuntimeError):
+    """A job was cancelled."""
+
+
+class Job:
+    """A task running somewhere; :meth:`poll` updates ``state``, ``progress``, ``message``."""
+
+    def __init__(self, task: str, params: dict[str, Any]) -> None:
+        self.task, self.params = task, params
+        self.state, self.progress, self.message = "pending", 0.0, "waiting"
+        self.result: dict | None = None
+        self.error: str | None = None
+
+    @property
+    def finished(self) -> bool:
+        return self.state in FINISHED
+
+    def start(self) -> Job:
+        raise NotImplementedError
+
+    def poll(self) -> bool:
+        """Refresh the state; True once finished."""
+        raise NotImplementedError
+
+    def cancel(self) -> None:
+        raise NotImplementedError
+
+    def wait(self, timeout: float | None = None, interval: float = 0.05) -> dict:
+        """Block until finished (scripts, ``execute``); returns the result.
+
+        Raises:
+            JobError: the task failed (message for the user). JobCancelled: it was cancelled.
+        """
+        t0 = time.monotonic()
+        while not self.poll():
+            if timeout is not None and time.monotonic() - t0 > timeout:
+                self.cancel()
+                raise JobError(f"{self.task} took longer than {timeout:.0f} s and was stopped")
+            time.sleep(interval)
+        return self.outcome()
+
+    def outcome(self) -> dict:
+        if self.state == "cancelled":
+            raise JobCancelled(f"{self.task} was cancelled")
+        if self.state == "error":
+            raise JobError(self.error or f"{self.task} failed")
+        return self.result or {}
+
+
+class ThreadJob(Job):
+    """The task in a thread of Blender's own Python (``prosplat`` must import here)."""
+
+    def start(self) -> ThreadJob:
+        from prosplat.worker import Progress
+
+        self._progress = Progress()
+        self._thread = threading.Thread(target=self._run, name=f"prosplat-{self.task}", daemon=True)
+        self.state = "running"
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        from prosplat.worker import USER_ERRORS, Cancelled, run_task
+
+        try:
+            self.result = run_task(self.task, self.params, self._progress)
+            self._final = "done"
+        except Cancelled:
+            self._final = "cancelled"
+        except USER_ERRORS as e:
+            self.error, self._final = str(e), "error"
+        except Exception as e:  # noqa: BLE001 - reported to the user, never raised into Blender
+            self.error, self._final = f"{type(e).__name__}: {e}", "error"
+
+    def poll(self) -> bool:
+        if self.state == "running":
+            self.progress, self.message = self._progress.fraction, self._progress.message
+            if not self._thread.is_alive():
+                self.state = self._final
+        return self.finished
+
+    def cancel(self) -> None:
+        if self.state == "running":
+            self._progress.cancel.set()
+            self.message = "cancelling (after the current step)"
+
+
+class ExternalJob(Job):
+    """The task in ``python -m prosplat.worker JOB.json`` run by another interpreter."""
+
+    def __init__(self, task: str, params: dict[str, Any], python: str) -> None:
+        super().__init__(task, params)
+        self.python = python
+        self._cancel_time: float | None = None
+
+    def start(self) -> ExternalJob:
+        if not (os.path.isfile(self.python) and os.access(self.python, os.X_OK)):
+            raise JobError(
+                f"the external Python {self.python!r} is not an executable file; fix it in "
+                "the ProSplat preferences or clear it to run in Blender's Python"
+            )
+        self.dir = Path(tempfile.mkdtemp(prefix="prosplat-job-"))
+        params = dict(self.params)
+        arrays = params.pop("arrays", None)
+        if arrays is not None:
+            np.savez(self.dir / "input.npz", **arrays)
+            params["arrays_file"] = str(self.dir / "input.npz")
+        self.job_file = self.dir / "job.json"
+        self.job_file.write_text(json.dumps({"task": self.task, "params": params}))
+        self.files = job_paths(self.job_file)
+        self._log = open(self.dir / "worker.log", "wb")  # noqa: SIM115 - closed in _finish
+        # The prosplat this add-on found (e.g. the wheel bundled with the extension) goes at the
+        # END of the worker's sys.path: the external Python's own packages always win, and the
+        # bundled copy only helps a Python that has torch but no prosplat.
+        root = runtime.prosplat_source_root() or ""
+        self.proc = subprocess.Popen(
+            [self.python, "-c", _BOOT, root, str(self.job_file)],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            cwd=str(self.dir),
+        )
+        self.state = "running"
+        return self
+
+    def _status(self) -> dict | None:
+        try:
+            return json.loads(self.files["status"].read_text())
+        except (OSError, ValueError):
+            return None  # not written yet (or mid-rename on an odd filesystem): poll again
+
+    def poll(self) -> bool:
+        if self.state != "running":
+            return self.finished
+        status = self._status()
+        if status:
+            self.progress = float(status.get("progress", 0.0))
+            self.message = str(status.get("message", ""))
+        code = self.proc.poll()
+        if code is None:
+            if self._cancel_time and time.monotonic() - self._cancel_time > _TERMINATE_AFTER:
+                self.proc.terminate()
+                self._cancel_time = time.monotonic() + 1e9  # once
+            return False
+        self._finish(code, self._status())
+        return True
+
+    def _finish(self, code: int, status: dict | None) -> None:
+        self._log.close()
+        state = (status or {}).get("state")
+        if state == "done":
+            self.result = status.get("result") or {}
+            if self.result.get("arrays_file"):
+                self.result["arrays"] = load_arrays(self.result.pop("arrays_file"))
+            self.state = "done"
+        elif state == "cancelled" or self._cancel_time is not None:
+            self.state = "cancelled"
+        else:
+            self.state = "error"
+            self.error = (status or {}).get("error") or self._crash_message(code)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def _crash_message(self, code: int) -> str:
+        try:
+            tail = (self.dir / "worker.log").read_text(errors="replace").strip().splitlines()[-6:]
+        except OSError:
+            tail = []
+        hint = " | ".join(tail) if tail else "no output"
+        return (
+            f"the external worker ({self.python}) exited with code {code} before finishing: "
+            f"{hint}. Check that this Python has prosplat and its requirements installed."
+        )
+
+    def cancel(self) -> None:
+        if self.state == "running" and self._cancel_time is None:
+            self.files["cancel"].touch()
+            self._cancel_time = time.monotonic()
+            self.message = "cancelling"
+
+
+def make_job(task: str, params: dict[str, Any], context=None) -> Job:
+    """The job for ``task`` where the preferences say: the external Python if one is set,
+    else a thread here. Raises :class:`JobError` when neither can run ``prosplat``."""
+    python = runtime.external_python(context)
+    if python:
+        return ExternalJob(task, params, python)
+    err = runtime.check_prosplat_import()
+    if err is not None:
+        raise JobError(
+            "ProSplat cannot run in Blender's Python yet "
+            f"({err}). In Preferences > Add-ons > ProSplat, install the requirements or set "
+            "an external Python that has prosplat installed."
+        )
+    return ThreadJob(task, params)
+
+
+def run_sync(task: str, params: dict[str, Any], context=None, timeout: float | None = None) -> dict:
+    """Start ``task`` and wait for it (scripts and ``execute``)."""
+    return make_job(task, params, context).start().wait(timeout)

@@ -1,0 +1,162 @@
+"""Add-on preferences: where the heavy work runs and with what, and the requirement check /
+install buttons that get a GUI user unstuck when Blender's Python has no torch."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+
+from . import install, runtime
+
+DEVICES = [
+    ("AUTO", "Auto", "CUDA if available, then Apple MPS, then the CPU"),
+    ("CPU", "CPU", "Run on the CPU"),
+    ("CUDA", "CUDA", "Run on an NVIDIA GPU"),
+    ("MPS", "MPS", "Run on Apple silicon"),
+]
+_STATUS: dict[str, object] = {}
+
+
+class PROSPLAT_OT_check_requirements(bpy.types.Operator):
+    """Check whether prosplat and its requirements import in Blender's Python"""
+
+    bl_idname = "prosplat.check_requirements"
+    bl_label = "Check Requirements"
+
+    def execute(self, context):
+        runtime.add_deps_to_path()
+        runtime.reset_import_check()
+        _STATUS["versions"] = runtime.requirement_versions()
+        err = runtime.check_prosplat_import()
+        _STATUS["import_error"] = err
+        if err is None:
+            self.report({"INFO"}, "prosplat imports in Blender's Python: ready")
+        else:
+            self.report({"WARNING"}, f"prosplat does not import here: {err}")
+        return {"FINISHED"}
+
+
+class PROSPLAT_OT_install_requirements(bpy.types.Operator):
+    """Install torch and prosplat's other requirements into Blender's Python with pip
+    (downloads a few hundred MB to a few GB)"""
+
+    bl_idname = "prosplat.install_requirements"
+    bl_label = "Install Requirements"
+
+    def execute(self, context):  # background/scripts: wait for pip
+        run = install.start_install(getattr(runtime.prefs(context), "pip_args", ""))
+        run.wait()
+        return self._report(context, run)
+
+    def invoke(self, context, event):
+        if "run" in install.CURRENT and not install.CURRENT["run"].poll():
+            self.report({"ERROR"}, "an install is already running")
+            return {"CANCELLED"}
+        self._run = install.start_install(getattr(runtime.prefs(context), "pip_args", ""))
+        wm = context.window_manager
+        wm.progress_begin(0, 100)
+        self._timer = wm.event_timer_add(0.25, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self._run.cancel()
+        if event.type not in ("TIMER", "ESC"):
+            return {"PASS_THROUGH"}
+        context.window_manager.progress_update(int(100 * self._run.fraction))
+        for area in context.screen.areas if context.screen else ():
+            area.tag_redraw()
+        if not self._run.poll():
+            return {"RUNNING_MODAL"}
+        context.window_manager.event_timer_remove(self._timer)
+        context.window_manager.progress_end()
+        return self._report(context, self._run)
+
+    def _report(self, context, run) -> set[str]:
+        ok, line = run.summary()
+        _STATUS["install"] = (ok, line)
+        if not ok:
+            self.report({"ERROR"}, line)
+            return {"CANCELLED"}
+        bpy.ops.prosplat.check_requirements()
+        self.report({"INFO"}, f"{line}; installed into {runtime.deps_dir()}")
+        return {"FINISHED"}
+
+
+class ProSplatPreferences(bpy.types.AddonPreferences):
+    bl_idname = runtime.PACKAGE
+
+    device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
+    weights_path: StringProperty(
+        name="Generator Weights", subtype="FILE_PATH",
+        description="A generator checkpoint (.safetensors); empty: the weights shipped with prosplat",
+    )  # fmt: skip
+    improve_weights_path: StringProperty(
+        name="Enhancement Weights", subtype="FILE_PATH",
+        description="An improvement-model checkpoint; empty: the shipped one, if any",
+    )  # fmt: skip
+    enhance: BoolProperty(
+        name="Enhance Renders", default=True,
+        description="Run the improvement model (stage 2) on each render; off: raw renders",
+    )  # fmt: skip
+    budget: IntProperty(
+        name="Gaussian Budget", default=0, min=0,
+        description="Most Gaussians a reconstruction keeps (0: automatic, lossless pruning only)",
+    )  # fmt: skip
+    max_input_size: IntProperty(
+        name="Input Size", default=256, min=32, soft_max=1024,
+        description="Long side (pixels) input images are scaled to for the generator",
+    )  # fmt: skip
+    python_path: StringProperty(
+        name="External Python", subtype="FILE_PATH",
+        description="A Python with prosplat installed that runs the heavy work through files "
+        "(empty: Blender's own Python)",
+    )  # fmt: skip
+    pip_args: StringProperty(
+        name="Extra pip Arguments",
+        description="Added to the install command, e.g. an --extra-index-url for CPU-only torch",
+    )  # fmt: skip
+
+    def draw(self, context):
+        layout = self.layout
+        col = layout.column()
+        col.prop(self, "device")
+        col.prop(self, "weights_path")
+        col.prop(self, "improve_weights_path")
+        col.prop(self, "enhance")
+        col.prop(self, "budget")
+        col.prop(self, "max_input_size")
+        box = layout.box()
+        box.label(text="Where the heavy work runs", icon="SCRIPTPLUGINS")
+        box.prop(self, "python_path")
+        if self.python_path.strip():
+            box.label(text="Jobs run in the external Python above (it needs prosplat installed).")
+        draw_requirements(box, self)
+
+
+def draw_requirements(layout, prefs) -> None:
+    versions = _STATUS.get("versions") or runtime.requirement_versions()
+    grid = layout.grid_flow(columns=2, even_columns=True)
+    for name, version in versions.items():
+        grid.label(text=f"{name}: {version or 'missing'}", icon="CHECKMARK" if version else "ERROR")
+    err = _STATUS.get("import_error", "unchecked")
+    if err is None:
+        layout.label(text="prosplat imports in Blender's Python", icon="CHECKMARK")
+    elif err != "unchecked":
+        layout.label(text=f"prosplat does not import: {str(err)[:120]}", icon="ERROR")
+    row = layout.row()
+    row.operator(PROSPLAT_OT_check_requirements.bl_idname, icon="FILE_REFRESH")
+    run = install.CURRENT.get("run")
+    if run is not None and not run.poll():
+        row.enabled = False
+        layout.progress(factor=run.fraction, type="BAR", text=run.last_line[:80])
+    else:
+        row.operator(PROSPLAT_OT_install_requirements.bl_idname, icon="IMPORT")
+    layout.prop(prefs, "pip_args")
+    if "install" in _STATUS:
+        ok, line = _STATUS["install"]
+        layout.label(text=line[:160], icon="CHECKMARK" if ok else "ERROR")
+
+
+CLASSES = (PROSPLAT_OT_check_requirements, PROSPLAT_OT_install_requirements, ProSplatPreferences)

@@ -1,0 +1,128 @@
+"""The sidebar panel (3D Viewport > N > ProSplat) and the File > Import/Export entries."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import bpy
+
+from . import modal, pointcloud, runtime
+from .operators import (
+    PROSPLAT_OT_capture_inputs,
+    PROSPLAT_OT_export_ply,
+    PROSPLAT_OT_import_ply,
+    PROSPLAT_OT_import_posed_images,
+    PROSPLAT_OT_reconstruct,
+    PROSPLAT_OT_render_view,
+)
+
+
+class _Panel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "ProSplat"
+
+
+class PROSPLAT_PT_main(_Panel, bpy.types.Panel):
+    bl_label = "ProSplat"
+
+    def draw(self, context):
+        layout = self.layout
+        for label, driver in list(modal.ACTIVE.items()):
+            layout.progress(factor=driver.job.progress, type="BAR",
+                            text=f"{label}: {driver.job.message}")  # fmt: skip
+        if not runtime.external_python(context) and importlib.util.find_spec("torch") is None:
+            box = layout.box()
+            box.label(text="Blender's Python has no torch yet", icon="ERROR")
+            box.label(text="Preferences > Add-ons > ProSplat: install it or set a Python")
+        p = runtime.prefs(context)
+        row = layout.row()
+        row.label(text=f"Device: {str(getattr(p, 'device', 'AUTO')).title()}")
+        row.label(text="External Python" if runtime.external_python(context) else "In Blender")
+
+
+class PROSPLAT_PT_inputs(_Panel, bpy.types.Panel):
+    bl_label = "Inputs"
+    bl_parent_id = "PROSPLAT_PT_main"
+
+    def draw(self, context):
+        s = context.scene.prosplat
+        layout = self.layout
+        layout.prop(s, "inputs")
+        layout.operator(PROSPLAT_OT_import_posed_images.bl_idname, icon="IMPORT")
+        box = layout.box()
+        box.label(text="Synthetic scene: render selected cameras")
+        box.prop(s, "capture_dir", text="")
+        box.operator(PROSPLAT_OT_capture_inputs.bl_idname, icon="RENDER_STILL")
+
+
+class PROSPLAT_PT_reconstruct(_Panel, bpy.types.Panel):
+    bl_label = "Reconstruct"
+    bl_parent_id = "PROSPLAT_PT_main"
+
+    def draw(self, context):
+        s, layout = context.scene.prosplat, self.layout
+        p = runtime.prefs(context)
+        if isinstance(p, bpy.types.AddonPreferences):
+            layout.prop(p, "budget")
+            layout.prop(p, "max_input_size")
+        col = layout.column()
+        col.enabled = s.inputs is not None
+        col.operator(PROSPLAT_OT_reconstruct.bl_idname, icon="OUTLINER_OB_POINTCLOUD")
+
+
+class PROSPLAT_PT_gaussians(_Panel, bpy.types.Panel):
+    bl_label = "Gaussians"
+    bl_parent_id = "PROSPLAT_PT_main"
+
+    def draw(self, context):
+        s, layout = context.scene.prosplat, self.layout
+        layout.prop(s, "gaussians")
+        obj = s.gaussians
+        mod = obj.modifiers.get(pointcloud.MODIFIER) if obj is not None else None
+        if mod is not None and mod.node_group is not None:
+            for item in mod.node_group.interface.items_tree:
+                if getattr(item, "in_out", "") == "INPUT" and item.name == pointcloud.RADIUS_SOCKET:
+                    layout.prop(mod, f'["{item.identifier}"]', text="Point Radius")
+            layout.label(text=f"{len(obj.data.vertices):,} Gaussians", icon="INFO")
+        row = layout.row(align=True)
+        row.operator(PROSPLAT_OT_import_ply.bl_idname, text="Import PLY", icon="IMPORT")
+        row.operator(PROSPLAT_OT_export_ply.bl_idname, text="Export PLY", icon="EXPORT")
+
+
+class PROSPLAT_PT_render(_Panel, bpy.types.Panel):
+    bl_label = "Render View"
+    bl_parent_id = "PROSPLAT_PT_main"
+
+    def draw(self, context):
+        s, layout = context.scene.prosplat, self.layout
+        layout.prop(s, "render_mode")
+        layout.prop(s, "output_dir", text="")
+        row = layout.row()
+        row.prop(s, "save_raw")
+        row.prop(s, "save_depth")
+        p = runtime.prefs(context)
+        if isinstance(p, bpy.types.AddonPreferences):
+            layout.prop(p, "enhance")
+        col = layout.column()
+        col.enabled = s.gaussians is not None or pointcloud.is_gaussians(context.active_object)
+        col.operator(PROSPLAT_OT_render_view.bl_idname, icon="RENDER_RESULT")
+
+
+def menu_import(self, context):
+    self.layout.operator(PROSPLAT_OT_import_ply.bl_idname, text="Gaussian Splat (.ply, ProSplat)")
+    self.layout.operator(PROSPLAT_OT_import_posed_images.bl_idname,
+                         text="Posed Images (transforms.json, COLMAP)")  # fmt: skip
+
+
+def menu_export(self, context):
+    self.layout.operator(PROSPLAT_OT_export_ply.bl_idname, text="Gaussian Splat (.ply, ProSplat)")
+
+
+CLASSES = (
+    PROSPLAT_PT_main,
+    PROSPLAT_PT_inputs,
+    PROSPLAT_PT_reconstruct,
+    PROSPLAT_PT_gaussians,
+    PROSPLAT_PT_render,
+)

@@ -1,0 +1,295 @@
+"""The worker's tasks: each takes JSON-ready ``params`` and a :class:`~prosplat.worker.Progress`
+and returns a result dict (numpy arrays under ``"arrays"``).
+
+Frames (input views) are ``{"image": path, "camera": camera dict}`` and target views
+``{"name": str, "camera": camera dict}``; camera dicts are described in
+:mod:`prosplat.convert.posed`. Gaussians come as ``"arrays"`` (the point attributes of
+:mod:`prosplat.convert.pointcloud`, as the Blender mesh holds them) plus an optional
+``"matrix_world"``, or as a ``"ply"`` path.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from prosplat.camera import Camera
+from prosplat.convert.pointcloud import from_attributes, to_attributes, transform_gaussians
+from prosplat.convert.posed import camera_from_dict, camera_to_blender_dict, read_posed_images
+from prosplat.gaussians import Gaussians
+from prosplat.worker import Progress
+
+SIZE_MULTIPLE = 32  # the generator's image sizes are multiples of this
+_MODEL_CACHE: dict[tuple, Any] = {}
+
+
+def pick_device(name: str | None) -> torch.device:
+    """``auto`` (CUDA, then MPS, then CPU), ``cpu``, ``cuda`` or ``mps``; an unavailable
+    device is an error rather than a silent fallback, so the preference means what it says."""
+    name = (name or "auto").lower()
+    if name == "auto":
+        if torch.cuda.is_available():
+            return torch.device("cuda")
+        mps = getattr(torch.backends, "mps", None)
+        return torch.device("mps" if mps is not None and mps.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' was asked for but torch sees no CUDA GPU; pick auto or cpu")
+    if name == "mps":
+        mps = getattr(torch.backends, "mps", None)
+        if mps is None or not mps.is_available():
+            raise ValueError("device 'mps' was asked for but is not available; pick auto or cpu")
+    if name not in ("cpu", "cuda", "mps"):
+        raise ValueError(f"unknown device {name!r}; use auto, cpu, cuda or mps")
+    return torch.device(name)
+
+
+def load_model(weights: str | None, device: torch.device, improve: str | bool | None = False):
+    """``ProSplat.from_pretrained`` once per (weights, improve, device) in this process.
+
+    ``improve``: the stage-2 checkpoint path, None for the shipped one (if any), False for
+    none (reconstruction never needs stage 2, so it does not pay for loading it).
+    """
+    from prosplat.pipeline import ProSplat
+
+    key = (str(weights or ""), str(improve), str(device))
+    if key not in _MODEL_CACHE:
+        _MODEL_CACHE.clear()  # one model at a time: they can be large
+        _MODEL_CACHE[key] = ProSplat.from_pretrained(weights or None, device=device,
+                                                     improve=improve)  # fmt: skip
+    return _MODEL_CACHE[key]
+
+
+def load_frames(frames: list, progress: Progress, lo: float, hi: float):
+    """Images [N,3,H,W] and cameras of input frames, all at the first frame's size."""
+    from prosplat.image_io import read_image
+
+    if not isinstance(frames, list) or not frames:
+        raise ValueError("no input views given; an input view needs an image and a camera")
+    images, cameras = [], []
+    for i, fr in enumerate(frames):
+        progress(lo + (hi - lo) * i / len(frames), f"reading input image {i + 1}/{len(frames)}")
+        name = fr.get("name", f"input {i}") if isinstance(fr, dict) else f"input {i}"
+        if not isinstance(fr, dict) or not fr.get("image"):
+            raise ValueError(f"input view '{name}' has no image; give every input camera an image")
+        cam = camera_from_dict(fr.get("camera"), f"input view '{name}'")
+        img = read_image(fr["image"])
+        if (img.shape[2], img.shape[1]) != (cam.width, cam.height):
+            cam = cam.resized(img.shape[2], img.shape[1])  # the file is the truth for the size
+        images.append(img)
+        cameras.append(cam)
+    w, h = cameras[0].width, cameras[0].height
+    for i in range(1, len(images)):
+        if (cameras[i].width, cameras[i].height) != (w, h):
+            images[i] = _resize(images[i], w, h)
+            cameras[i] = cameras[i].resized(w, h)
+    return torch.stack(images), cameras
+
+
+def _resize(img: torch.Tensor, w: int, h: int) -> torch.Tensor:
+    out = F.interpolate(
+        img[None], size=(h, w), mode="bilinear", antialias=True, align_corners=False
+    )
+    return out[0].clamp(0, 1)
+
+
+def generator_size(w: int, h: int, max_size: int | None) -> tuple[int, int]:
+    """Multiples of 32 near (w, h), scaled down so the long side is at most ``max_size``."""
+    s = 1.0 if not max_size else min(1.0, max_size / max(w, h))
+    snap = lambda x: max(SIZE_MULTIPLE, int(round(x * s / SIZE_MULTIPLE)) * SIZE_MULTIPLE)  # noqa: E731
+    return snap(w), snap(h)
+
+
+def _gaussians_from(params: dict) -> Gaussians:
+    from prosplat.ply import read_ply
+
+    if params.get("arrays") is not None:
+        g = from_attributes(params["arrays"])
+    elif params.get("ply"):
+        g = read_ply(params["ply"], dtype=torch.float64)
+    else:
+        raise ValueError("no Gaussians given: pass 'arrays' (point attributes) or 'ply' (a path)")
+    if params.get("matrix_world") is not None:
+        g = transform_gaussians(g, params["matrix_world"])
+    return g
+
+
+# ---- tasks ----------------------------------------------------------------------------------
+def task_read_posed_images(params: dict, progress: Progress) -> dict:
+    progress(0.1, "reading cameras")
+    posed, meta = read_posed_images(params["path"], params.get("images_dir"))
+    if not posed:
+        raise ValueError(f"{params['path']} holds no cameras")
+    frames = [
+        {
+            "name": p.name,
+            "image": str(p.image) if p.image else None,
+            "blender": camera_to_blender_dict(p.camera),
+        }  # fmt: skip
+        for p in posed
+    ]
+    bounds = {k: float(meta[k]) for k in ("near", "far") if isinstance(meta.get(k), (int, float))}
+    return {"frames": frames, **bounds}
+
+
+def task_write_transforms(params: dict, progress: Progress) -> dict:
+    from prosplat.convert.nerfstudio import Frame, write_transforms
+
+    progress(0.5, "writing transforms.json")
+    frames = [
+        Frame(camera_from_dict(f["camera"], f["file_path"]), f["file_path"], f.get("extra", {}))
+        for f in params["frames"]
+    ]
+    path = write_transforms(params["path"], frames, params.get("meta"), overwrite=False)
+    return {"path": str(path)}
+
+
+def task_import_ply(params: dict, progress: Progress) -> dict:
+    from prosplat.ply import read_ply
+
+    progress(0.1, "reading PLY")
+    g = read_ply(params["path"], dtype=torch.float64)
+    progress(0.6, "converting")
+    return {"count": len(g), "sh_degree": g.sh_degree, "arrays": to_attributes(g)}
+
+
+def task_export_ply(params: dict, progress: Progress) -> dict:
+    from prosplat.ply import write_ply
+
+    progress(0.1, "converting")
+    g = _gaussians_from(params)
+    progress(0.4, "writing PLY")
+    write_ply(g, params["path"], overwrite=bool(params.get("overwrite", False)))
+    return {"path": str(params["path"]), "count": len(g)}
+
+
+def task_reconstruct(params: dict, progress: Progress) -> dict:
+    """Generator on the input views -> pruned Gaussians (point attributes, optional PLY)."""
+    from prosplat.budget import prune_gaussians
+
+    t0 = time.perf_counter()
+    device = pick_device(params.get("device"))
+    progress(0.02, "loading the generator")
+    model = load_model(params.get("weights"), device)
+    images, cameras = load_frames(params.get("frames"), progress, 0.1, 0.3)
+    if len(cameras) < 2:
+        raise ValueError(f"reconstruction needs at least 2 input views, got {len(cameras)}")
+    w, h = generator_size(cameras[0].width, cameras[0].height, params.get("max_size"))
+    if (w, h) != (cameras[0].width, cameras[0].height):
+        images = torch.stack([_resize(im, w, h) for im in images])
+        cameras = [c.resized(w, h) for c in cameras]
+    progress(0.35, f"running the generator on {len(cameras)} views at {w}x{h}")
+    t1 = time.perf_counter()
+    out = model.reconstruct_full(images.to(device), cameras, params.get("near"), params.get("far"))
+    t_gen = time.perf_counter() - t1
+    progress(0.8, "pruning to the Gaussian budget")
+    g = out.gaussians(0).detach().to("cpu")
+    view_index = torch.arange(len(cameras)).repeat_interleave(h * w)
+    budget = params.get("budget") or None
+    g, _, stats = prune_gaussians(g, view_index, out.depths[0].cpu(), cameras, budget=budget)
+    if len(g) == 0:
+        raise ValueError("the generator produced no visible Gaussians for these views")
+    if params.get("ply"):
+        from prosplat.ply import write_ply
+
+        progress(0.9, "writing PLY")
+        write_ply(g, params["ply"])
+    stats = {k: int(v) for k, v in stats.items()}
+    return {
+        "count": len(g), "sh_degree": g.sh_degree, "stats": stats, "size": [w, h],
+        "seconds": {"generator": t_gen, "total": time.perf_counter() - t0},
+        "arrays": to_attributes(g),
+    }  # fmt: skip
+
+
+def _unique_stem(folder: Path, stem: str, suffixes: list[str]) -> str:
+    """``stem``, or ``stem-2``, ``stem-3``... so that no file ``stem+suffix`` exists."""
+    candidate, k = stem, 1
+    while any((folder / f"{candidate}{s}").exists() for s in suffixes):
+        k += 1
+        candidate = f"{stem}-{k}"
+    return candidate
+
+
+def _safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "view"
+
+
+def _render_one(model, g: Gaussians, cam: Camera, images, cameras, enhance: bool):
+    """``model.render``: rasterize, then (``enhance``) the improvement model with MORI."""
+    return model.render(g, cam, images, cameras if cameras else None, enhance=enhance)
+
+
+def task_render(params: dict, progress: Progress) -> dict:
+    """Render target cameras (and enhance them) into files in ``output_dir``."""
+    from prosplat.image_io import write_depth, write_image
+
+    out_dir = Path(params["output_dir"])
+    targets = params.get("targets") or []
+    if not targets:
+        raise ValueError("no cameras to render; select a camera or set an active one")
+    frames = params.get("inputs") or []
+    for fr in frames:
+        if fr.get("image") and Path(fr["image"]).resolve().parent == out_dir.resolve():
+            raise ValueError(
+                f"the output folder {out_dir} holds the input images; choose another folder so "
+                "renders can never replace them"
+            )
+    cams = [camera_from_dict(t.get("camera"), f"target '{t.get('name')}'") for t in targets]
+    device = pick_device(params.get("device"))
+    progress(0.02, "loading the model")
+    enhance = bool(params.get("enhance", True))
+    improve = (params.get("improve_weights") or None) if enhance else False
+    model = load_model(params.get("weights"), device, improve)
+    if enhance and getattr(model, "improver", None) is None:
+        progress.warn("no enhancement weights are available; saved raw renders instead")
+        enhance = False
+    images, in_cams = (None, [])
+    if frames:
+        images, in_cams = load_frames(frames, progress, 0.05, 0.15)
+        images = images.to(device)
+    elif enhance:
+        progress.warn("no input views to borrow texture from; saved raw renders instead")
+        enhance = False
+    g = _gaussians_from(params).to(device, torch.float32)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    views = []
+    for i, (t, cam) in enumerate(zip(targets, cams)):
+        progress(0.2 + 0.8 * i / len(cams), f"rendering {t.get('name', i)} ({i + 1}/{len(cams)})")
+        try:
+            v = _render_one(model, g, cam, images, in_cams, enhance)
+        except ValueError as e:
+            if not enhance or "improv" not in str(e).lower():
+                raise
+            progress.warn(f"enhancement unavailable ({e}); saved raw renders instead")
+            enhance = False
+            v = _render_one(model, g, cam, images, in_cams, False)
+        suffixes = [".png"] + ["_raw.png"] * bool(params.get("save_raw") and enhance)
+        suffixes += ["_depth.exr"] * bool(params.get("save_depth"))
+        stem = _unique_stem(out_dir, _safe_name(str(t.get("name", f"view_{i:03d}"))), suffixes)
+        rec = {"name": t.get("name"), "image": str(write_image(out_dir / f"{stem}.png", v.image))}
+        if "_raw.png" in suffixes:
+            rec["raw"] = str(write_image(out_dir / f"{stem}_raw.png", v.raw))
+        if params.get("save_depth"):
+            rec["depth"] = str(write_depth(out_dir / f"{stem}_depth.exr", v.depth.float().cpu()))
+        ref = v.reference
+        rec["reference"] = None if ref is None else int(ref)
+        rec["reference_name"] = None if ref is None else frames[int(ref)].get("name")
+        rec["timings"] = {k: float(x) for k, x in dict(v.timings).items()}
+        rec["enhanced"] = enhance
+        views.append(rec)
+    return {"views": views, "output_dir": str(out_dir)}
+
+
+TASKS = {
+    "read_posed_images": task_read_posed_images,
+    "write_transforms": task_write_transforms,
+    "import_ply": task_import_ply,
+    "export_ply": task_export_ply,
+    "reconstruct": task_reconstruct,
+    "render": task_render,
+}

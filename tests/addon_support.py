@@ -1,0 +1,54 @@
+"""Shared helpers for the add-on's bpy tests (imported after ``pytest.importorskip("bpy")``)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import bpy
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import addon  # noqa: E402
+
+
+def ensure_registered() -> None:
+    if not hasattr(bpy.types.Scene, "prosplat"):
+        addon.register()
+
+
+def reset_scene():
+    """An empty factory scene with the add-on registered (each test file's ``blank``
+    fixture); returns the scene."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    ensure_registered()
+    return bpy.context.scene
+
+
+def run_op(op, **kwargs) -> tuple[set, str | None]:
+    """Call an operator as a script would (EXEC); returns (result, error message or None).
+
+    In background mode Blender turns an operator's ERROR report into a RuntimeError after the
+    operator returned CANCELLED; that message is what a user would see in the status bar.
+    """
+    try:
+        return op("EXEC_DEFAULT", **kwargs), None
+    except RuntimeError as e:
+        return {"CANCELLED"}, str(e)
+
+
+def data_counts() -> dict[str, int]:
+    """How many of each kind of data-block exist (to prove nothing half-made was left)."""
+    kinds = ("objects", "meshes", "cameras", "collections", "images", "node_groups", "materials")
+    return {k: len(getattr(bpy.data, k)) for k in kinds}
+
+
+def evaluated_points(obj):
+    """The PointCloud the Geometry Nodes modifier makes from ``obj`` (4.2 and 5.0)."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    for inst in depsgraph.object_instances:
+        if inst.object.type == "POINTCLOUD" and inst.object.original == obj:
+            return inst.object.data
+    return None
