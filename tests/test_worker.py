@@ -198,13 +198,17 @@ def test_reconstruct_then_render(scene, tmp_path: Path) -> None:
         run_task("render", rp)
 
 
-def test_render_without_improver_warns_and_saves_raw(scene, tmp_path: Path) -> None:
+def test_render_without_improver_warns_and_saves_raw(scene, tmp_path: Path, monkeypatch) -> None:
+    """No improvement weights anywhere (shipped file absent): raw renders and a warning."""
+    import prosplat.improve.io
     from prosplat.worker import tasks
 
     folder, cams = scene
-    model = tasks.load_model(None, torch.device("cpu"), None)
-    if model.improver is not None:
-        pytest.skip("shipped enhancement weights exist; this checks the fallback")
+    monkeypatch.setattr(
+        prosplat.improve.io, "DEFAULT_IMPROVE_WEIGHTS", tmp_path / "missing.safetensors"
+    )
+    monkeypatch.setattr(tasks, "_MODEL_CACHE", {})
+    assert tasks.load_model(None, torch.device("cpu"), None).improver is None
     g = to_attributes(random_gaussians(50, 0))
     targets = [{"name": "v", "camera": camera_to_blender_dict(cams[0])}]
     res = run_task("render", {"arrays": g, "targets": targets, "enhance": True, "device": "cpu",
