@@ -88,6 +88,49 @@ def abs_rel(pred: Tensor, gt: Tensor, alpha: Tensor) -> float:
     return float(((pred[valid] - gt[valid]).abs() / gt[valid]).mean())
 
 
+def score_view(
+    method: str,
+    views: int,
+    kind: str | None,
+    scene: str,
+    pred: Tensor,
+    gt: Tensor,
+    recon_s: float,
+    render_ms: float,
+    gaussians: int,
+    depth: Tensor | None = None,
+    alpha: Tensor | None = None,
+    gt_depth: Tensor | None = None,
+) -> Score:
+    """PSNR / SSIM / LPIPS (and depth AbsRel when depths are given) of one predicted view.
+
+    LPIPS needs at least 32 px on each side (AlexNet's strides); smaller views score NaN.
+    """
+    from prosplat.metrics import lpips, psnr, ssim
+
+    pred = pred.clamp(0, 1)
+    with torch.no_grad():
+        lp = float(lpips(pred, gt)) if min(gt.shape[1:]) >= 32 else float("nan")
+    rel = (
+        abs_rel(depth, gt_depth, alpha)
+        if gt_depth is not None and depth is not None
+        else float("nan")
+    )
+    return Score(
+        method=method,
+        views=views,
+        kind=kind or "target",
+        scene=scene,
+        psnr=float(psnr(pred, gt)),
+        ssim=float(ssim(pred, gt)),
+        lpips=lp,
+        abs_rel=rel,
+        recon_s=recon_s,
+        render_ms=render_ms,
+        gaussians=gaussians,
+    )
+
+
 def evaluate_scene(
     scene: SceneData,
     methods: dict[str, Method],
@@ -95,8 +138,6 @@ def evaluate_scene(
     budget: int | float | None = None,
 ) -> list[Score]:
     """Score every method on one scene for each input-view count."""
-    from prosplat.metrics import lpips, psnr, ssim
-
     rows = []
     name = scene.folder.name if scene.folder else "scene"
     for n in views:
@@ -119,25 +160,22 @@ def evaluate_scene(
                 with torch.no_grad():
                     out = render(g, scene.cameras[t])
                 render_ms = (time.perf_counter() - t1) * 1e3
-                pred, gt = out.rgb.clamp(0, 1), scene.images[t]
-                with torch.no_grad():
-                    lp = float(lpips(pred, gt)) if min(gt.shape[1:]) >= 32 else float("nan")
+                gt_depth = scene.depths[t] if scene.depths is not None else None
                 rows.append(
-                    Score(
-                        method=label,
-                        views=n,
-                        kind=scene.target_kinds[t] or "target",
-                        scene=name,
-                        psnr=float(psnr(pred, gt)),
-                        ssim=float(ssim(pred, gt)),
-                        lpips=lp,
-                        abs_rel=abs_rel(out.depth, scene.depths[t], out.alpha)
-                        if scene.depths is not None
-                        else float("nan"),
-                        recon_s=recon,
-                        render_ms=render_ms,
-                        gaussians=len(g),
-                    )
+                    score_view(
+                        label,
+                        n,
+                        scene.target_kinds[t],
+                        name,
+                        out.rgb,
+                        scene.images[t],
+                        recon,
+                        render_ms,
+                        len(g),
+                        out.depth,
+                        out.alpha,
+                        gt_depth,
+                    )  # fmt: skip
                 )
     return rows
 

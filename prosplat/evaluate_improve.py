@@ -16,7 +16,7 @@ import torch
 
 from prosplat.data.scene import SceneData
 from prosplat.enhance import render_view
-from prosplat.evaluate import Score, pick_inputs
+from prosplat.evaluate import Score, pick_inputs, score_view
 
 
 @dataclass
@@ -33,8 +33,6 @@ def evaluate_rows(
     scene: SceneData, rows: dict[str, Row], views: list[int], dtype: torch.dtype = torch.float32
 ) -> list[Score]:
     """Scores of every row on one scene for each input-view count."""
-    from prosplat.metrics import lpips, psnr, ssim
-
     out: list[Score] = []
     name = scene.folder.name if scene.folder else "scene"
     for n in views:
@@ -57,22 +55,9 @@ def evaluate_rows(
                 view = render_view(g, cam, images, cams, row.improver,
                                    reference_method=row.reference, dtype=dtype)  # fmt: skip
                 ms = (time.perf_counter() - t1) * 1e3
-                pred = view.image.clamp(0, 1)
-                with torch.no_grad():
-                    lp = float(lpips(pred, gt)) if min(gt.shape[1:]) >= 32 else float("nan")
                 out.append(
-                    Score(
-                        method=label,
-                        views=n,
-                        kind=scene.target_kinds[t] or "target",
-                        scene=name,
-                        psnr=float(psnr(pred, gt)),
-                        ssim=float(ssim(pred, gt)),
-                        lpips=lp,
-                        abs_rel=float("nan"),
-                        recon_s=recon_s,
-                        render_ms=ms,
-                        gaussians=len(g),
-                    )
+                    score_view(
+                        label, n, scene.target_kinds[t], name, view.image, gt, recon_s, ms, len(g)
+                    )  # fmt: skip
                 )
     return out

@@ -127,3 +127,21 @@ def test_joint_parameters_freeze_the_rest(decoder: bool) -> None:
     assert not any(n.startswith(("unet.", "dwea.")) for n in names)
     gen_names = [n for n, p in pipe.generator.named_parameters() if p.requires_grad]
     assert gen_names and all(n.startswith("adapter.") for n in gen_names)
+
+
+def test_ablation_rows_score_the_same_views(setup, tmp_path) -> None:
+    """`prosplat eval improve`'s engine: every row scores the same targets; an untrained
+    (identity) improver scores exactly what the generator alone does."""
+    from prosplat.data.scene import load_scene
+    from prosplat.evaluate_improve import Row, evaluate_rows
+
+    root, gen_path, _ = setup
+    gen = ProSplat.from_pretrained(gen_path, improve=False)
+    rows = {"generator only": Row(gen), "identity": Row(gen, ImproveModel(SMALL), "overlap")}
+    scene = load_scene(root / "scenes" / "scene_0", load_depth=False)
+    scores = evaluate_rows(scene, rows, [2, 3])
+    assert len(scores) == 2 * 2 * len(scene.target_indices)
+    gen_psnr = [s.psnr for s in scores if s.method == "generator only"]
+    id_psnr = [s.psnr for s in scores if s.method == "identity"]
+    assert gen_psnr == pytest.approx(id_psnr, abs=1e-4)
+    assert {s.views for s in scores} == {2, 3} and all(s.gaussians > 0 for s in scores)

@@ -27,6 +27,7 @@ import torch
 
 from prosplat.gaussians import SH_C0, Gaussians
 from prosplat.ply import OPACITY_MAX, OPACITY_MIN, SCALE_MIN
+from prosplat.rotations import quat_multiply
 
 __all__ = [
     "COLOR",
@@ -144,21 +145,6 @@ def from_attributes(
 
 
 # ---- rigid / similarity transforms ----------------------------------------------------------
-def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Hamilton product of [.., 4] (w, x, y, z) quaternions."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        dim=-1,
-    )
-
-
 def _rotmat_to_quat(R: torch.Tensor) -> torch.Tensor:
     from prosplat.convert.colmap import rotmat_to_qvec
 
@@ -215,7 +201,7 @@ def transform_gaussians(gaussians: Gaussians, matrix) -> Gaussians:
     dt = g.dtype
     means = (g.means.double() @ A.T + m[:3, 3]).to(dt)
     q = _rotmat_to_quat(R).to(torch.float64)
-    quats = _quat_mul(q.expand(len(g), 4), g.quats.double()).to(dt)
+    quats = quat_multiply(q.expand(len(g), 4), g.quats.double()).to(dt)
     scales = (g.scales.double() * s).to(dt)
     sh = g.sh.double().clone()
     for band, D in enumerate(_sh_rotation(g.sh_degree, R), start=1):
