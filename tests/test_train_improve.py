@@ -41,7 +41,9 @@ def setup(tmp_path_factory):
     torch.manual_seed(0)
     gen = ProSplat(GEN)
     gen_path = gen.save(root / "gen.safetensors")
-    curated = curate(gen, root / "scenes", root / "curated.safetensors", views=(2, 3), progress=False)
+    curated = curate(
+        gen, root / "scenes", root / "curated.safetensors", views=(2, 3), progress=False
+    )
     return root, gen_path, curated
 
 
@@ -59,7 +61,12 @@ def test_curation_stores_render_reference_and_truth(setup) -> None:
     raw, ref, fund, gt = curated_batch(data, torch.tensor([0, 5]), "overlap", "cpu")
     assert raw.dtype == torch.float32 and raw.shape == (2, 3, 32, 32)
     with pytest.raises(FileExistsError):
-        curate(ProSplat.from_pretrained(gen_path, improve=False), root / "scenes", curated, progress=False)
+        curate(
+            ProSplat.from_pretrained(gen_path, improve=False),
+            root / "scenes",
+            curated,
+            progress=False,
+        )
     with pytest.raises(ValueError, match="reference method"):
         curated_batch(data, torch.tensor([0]), "nearest", "cpu")
 
