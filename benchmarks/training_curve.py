@@ -22,7 +22,9 @@ def main() -> None:
     rows = [json.loads(line) for line in args.log.read_text().splitlines() if line.strip()]
     val = [r for r in rows if "val_psnr" in r]
     nan = float("nan")
-    print("| step | minutes | train loss | val PSNR | val PSNR of the input (raw) | val SSIM | val LPIPS |")
+    print(
+        "| step | minutes | train loss | val PSNR | val PSNR of the input (raw) | val SSIM | val LPIPS |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for r in val:  # stage-2 logs add val_psnr_raw; generator logs add val_ssim / val_lpips
         print(
