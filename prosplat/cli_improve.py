@@ -75,13 +75,22 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
     gen = ProSplat.from_pretrained(args.generator, improve=False)
     rows = {"generator only": Row(gen)}
     for spec in args.row:
-        label, _, rest = spec.partition("=")
-        path, _, method = rest.partition(":")
+        label, _, path = spec.rpartition("=")  # labels may hold "=", paths rarely do
+        method = "paper"
+        head, _, tail = path.rpartition(":")
+        if tail in ("paper", "overlap"):  # a trailing :METHOD, not a drive letter
+            path, method = head, tail
+        if not label or not path:
+            print(
+                f"prosplat eval improve: --row {spec!r} is not LABEL=PATH[:paper|overlap]",
+                file=sys.stderr,
+            )
+            return 2
         generator = gen
         if "+" in path:  # joint rows: GENERATOR+IMPROVER
             g_path, path = path.split("+", 1)
             generator = ProSplat.from_pretrained(g_path, improve=False)
-        rows[label] = Row(generator, load_improver(path), method or "paper")
+        rows[label] = Row(generator, load_improver(path), method)
     dtype = torch.bfloat16 if args.bf16 else torch.float32
     scores = []
     for folder in tqdm(find_scenes(args.data)[: args.scenes], desc="ablation", unit="scene"):

@@ -82,7 +82,7 @@ def enhance(
             raise ValueError("this improvement model needs a reference view and its camera")
         ref_img, ref_cam = reference_at(reference_image.to(device), reference_camera, w, h)
         ref = pad_to_multiple(ref_img[None], m)
-        fund = fundamental_matrix(camera, ref_cam).float()[None].to(device)
+        fund = fundamental_matrix(camera, ref_cam)[None].to(device)  # float64: DWEA's precision
     with torch.autocast(device.type, dtype=dtype, enabled=dtype != torch.float32):
         out = improver(x, ref, fund)
     return out.float()[0, :, :h, :w]

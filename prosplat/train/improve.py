@@ -194,6 +194,13 @@ def train_improve(cfg: ImproveTrainConfig, progress: bool = True, model_config=N
     torch.manual_seed(cfg.seed)
     if cfg.init:
         model = load_improver(cfg.init)
+        asked = {"timestep": cfg.timestep, "denoise": cfg.denoise, "reference": cfg.reference}
+        have = {k: getattr(model.config, k) for k in asked}
+        if have != asked:
+            raise ValueError(
+                f"--init {cfg.init} was trained with {have} but this run asks for {asked}; "
+                "pass the same --timestep/--denoise/--reference or start without --init"
+            )
     else:
         base = model_config or preset(cfg.config)
         model = ImproveModel(
