@@ -164,9 +164,6 @@ def cmd_train_generator(args: argparse.Namespace) -> int:
 
 
 def cmd_eval_generator(args: argparse.Namespace) -> int:
-    import json
-    from dataclasses import asdict
-
     from tqdm import tqdm
 
     from prosplat import evaluate
@@ -189,10 +186,20 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     for folder in tqdm(folders, desc="evaluating scenes", unit="scene"):
         budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
         rows += evaluate.evaluate_scene(load_scene(folder), methods, args.views, budget=budget)
-    summary = evaluate.summarise(rows)
-    table = evaluate.markdown_table(summary)
+    return write_scores(rows, args.out)
+
+
+def write_scores(rows: list, out: Path) -> int:
+    """Print the summary table of ``rows`` (evaluate.Score) and write ``summary.md`` and
+    ``scores.json`` into a fresh folder at ``out`` (never over an earlier evaluation)."""
+    import json
+    from dataclasses import asdict
+
+    from prosplat import evaluate
+
+    table = evaluate.markdown_table(evaluate.summarise(rows))
     print(table)
-    out = _fresh_folder(args.out, overwrite=False)
+    out = _fresh_folder(out, overwrite=False)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
     (out / "summary.md").write_text(table + "\n")

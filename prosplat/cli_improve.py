@@ -7,9 +7,8 @@ Kept apart from :mod:`prosplat.cli` so each file stays small; ``cli.build_parser
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from dataclasses import asdict, fields
+from dataclasses import fields
 from pathlib import Path
 
 
@@ -65,9 +64,8 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from prosplat.cli import _fresh_folder
+    from prosplat.cli import write_scores
     from prosplat.data import find_scenes, load_scene
-    from prosplat.evaluate import markdown_table, summarise
     from prosplat.evaluate_improve import Row, evaluate_rows
     from prosplat.improve.io import load_improver
     from prosplat.pipeline import ProSplat
@@ -95,14 +93,7 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
     scores = []
     for folder in tqdm(find_scenes(args.data)[: args.scenes], desc="ablation", unit="scene"):
         scores += evaluate_rows(load_scene(folder, load_depth=False), rows, args.views, dtype)
-    table = markdown_table(summarise(scores))
-    print(table)
-    out = _fresh_folder(args.out, overwrite=False)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scores.json").write_text(json.dumps([asdict(s) for s in scores], indent=1))
-    (out / "summary.md").write_text(table + "\n")
-    print(f"wrote {out / 'summary.md'} and scores.json")
-    return 0
+    return write_scores(scores, args.out)
 
 
 def add_train_parsers(train_sub) -> None:

@@ -193,8 +193,9 @@ def render_loss(
     return loss, {k: float(v.detach()) for k, v in parts.items()}
 
 
-def lr_at(step: int, cfg: TrainConfig) -> float:
-    """Linear warm-up, then cosine decay to 10 % of the peak."""
+def lr_at(step: int, cfg) -> float:
+    """Linear warm-up, then cosine decay to 10 % of the peak; ``cfg`` is any training config
+    with ``lr``, ``warmup`` and ``steps`` (the generator's and the stage-2 ones)."""
     if step < cfg.warmup:
         return cfg.lr * (step + 1) / cfg.warmup
     t = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)

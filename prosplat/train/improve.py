@@ -34,6 +34,7 @@ from prosplat.train.common import (
     truncate_log,
 )
 from prosplat.train.curate import curated_batch, load_curated
+from prosplat.train.generator import lr_at
 
 
 @dataclass(frozen=True)
@@ -85,14 +86,6 @@ class JointTrainConfig:
     device: str = "auto"
 
 
-def _lr(step: int, base: float, warmup: int, steps: int) -> float:
-    """Linear warm-up, then cosine decay to 10 %."""
-    if step < warmup:
-        return base * (step + 1) / warmup
-    t = (step - warmup) / max(1, steps - warmup)
-    return base * (0.1 + 0.45 * (1 + math.cos(math.pi * min(t, 1.0))))
-
-
 def enhance_loss(pred: Tensor, target: Tensor, lpips_fn, weight: float) -> tuple[Tensor, dict]:
     """Mean MSE + ``weight`` · mean LPIPS over the batch [B,3,H,W]."""
     mse = (pred - target).square().mean()
@@ -133,7 +126,7 @@ class _Run:
 
     def advance(self, loss: Tensor, params, parts: dict, extra: dict | None = None) -> None:
         for group in self.opt.param_groups:
-            group["lr"] = _lr(self.step, self.cfg.lr, self.cfg.warmup, self.cfg.steps)
+            group["lr"] = lr_at(self.step, self.cfg)
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         if not math.isfinite(float(loss.detach())):
@@ -187,9 +180,16 @@ def validate_improver(model: ImproveModel, data, method: str, device, limit: int
 
 def train_improve(cfg: ImproveTrainConfig, progress: bool = True, model_config=None) -> Path:
     """Train (or resume) an improvement model into ``cfg.out``; returns ``improve.safetensors``."""
+    dist = setup_distributed(cfg.device)
+    try:
+        return _train_improve(cfg, progress, model_config, dist)
+    finally:
+        dist.close()
+
+
+def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: Dist) -> Path:
     from prosplat.metrics import LPIPS
 
-    dist = setup_distributed(cfg.device)
     device = dist.device
     torch.manual_seed(cfg.seed)
     if cfg.init:
@@ -233,7 +233,6 @@ def train_improve(cfg: ImproveTrainConfig, progress: bool = True, model_config=N
     if dist.is_main:
         cmd = f"prosplat train improve {json.dumps(asdict(cfg))}"
         save_improver(model.cpu(), final, overwrite=True, command=cmd, steps=str(run.step))
-    dist.close()
     return final
 
 
@@ -256,6 +255,14 @@ def joint_parameters(pipe, improver: ImproveModel, train_decoder: bool) -> list[
 
 def train_joint(cfg: JointTrainConfig, progress: bool = True) -> tuple[Path, Path]:
     """Joint fine-tuning; returns (generator checkpoint, improvement checkpoint)."""
+    dist = setup_distributed(cfg.device)
+    try:
+        return _train_joint(cfg, progress, dist)
+    finally:
+        dist.close()
+
+
+def _train_joint(cfg: JointTrainConfig, progress: bool, dist: Dist) -> tuple[Path, Path]:
     from prosplat.data import SceneDataset
     from prosplat.improve.epipolar import fundamental_matrix
     from prosplat.improve.mori import select_reference
@@ -264,7 +271,6 @@ def train_joint(cfg: JointTrainConfig, progress: bool = True) -> tuple[Path, Pat
     from prosplat.render import render
     from prosplat.train.generator import batch_cameras
 
-    dist = setup_distributed(cfg.device)
     device = dist.device
     torch.manual_seed(cfg.seed)
     pipe = ProSplat.from_pretrained(cfg.generator, improve=cfg.improver, device=device)
@@ -314,5 +320,4 @@ def train_joint(cfg: JointTrainConfig, progress: bool = True) -> tuple[Path, Pat
         pipe.save(gen_path, overwrite=True)
         cmd = f"prosplat train joint {json.dumps(asdict(cfg))}"
         save_improver(imp, imp_path, overwrite=True, command=cmd, steps=str(run.step))
-    dist.close()
     return gen_path, imp_path
