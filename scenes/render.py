@@ -146,10 +146,16 @@ def render_scene(
     denoise: bool = False,
     threads: int | None = None,
     lens_mm: float | None = None,
+    progress: bool = False,
+    blend: Path | None = None,
 ) -> Path:
     """Build and render scene ``name`` (a family or a hard scene) for ``seed`` into ``out``.
 
     Returns the scene folder. Skips (returns at once) when the folder already exists.
+    ``progress`` prints one ``PROSPLAT_PROGRESS done total`` line per view to stdout (a parent
+    process turns them into a progress bar: Blender's own log lines carry no count).
+    ``blend`` also saves the built scene, with one camera object per rendered view, as a
+    .blend file there (for artists to open; never replaces an existing file).
     """
     final = out / scene_folder_name(name, seed)
     if final.exists():
@@ -184,6 +190,8 @@ def render_scene(
             )
             write_depth(tmp / "depth" / f"{v:03d}.exr", torch.from_numpy(depth))
             view_seconds.append(round(time.perf_counter() - t_view, 3))
+            if progress:
+                print(f"PROSPLAT_PROGRESS {v + 1} {len(views)}", flush=True)
             valid = depth[depth > 0]
             near = float(valid.min()) if valid.size else 0.1
             far = float(valid.max()) if valid.size else 100.0
@@ -228,11 +236,31 @@ def render_scene(
             },
         }
         write_transforms(tmp / "transforms.json", frames, meta)
+        if blend is not None:
+            save_blend(blend, cam_obj, frames)
         os.rename(tmp, final)  # atomic on one filesystem: the folder appears complete or not at all
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def save_blend(path: Path, template, frames: list[Frame]) -> None:
+    """Save the current scene with a camera object per frame (``input_000``, ``target_003``...)
+    to ``path``; refuses to replace an existing file."""
+    if path.exists():
+        raise FileExistsError(f"{path} exists; not replacing it")
+    sc = bpy.context.scene
+    for v, frame in enumerate(frames):
+        obj = template.copy()
+        obj.data = template.data.copy()
+        obj.name = obj.data.name = f"{frame.extra['split']}_{v:03d}"
+        _place_camera(obj, frame.camera)
+        sc.collection.objects.link(obj)
+    sc.collection.objects.unlink(template)
+    sc.camera = next(o for o in sc.collection.objects if o.name.startswith("input_"))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True, compress=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -248,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--denoise", action="store_true")
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--progress", action="store_true", help="print PROSPLAT_PROGRESS lines")
+    ap.add_argument("--blend", type=Path, default=None, help="also save the scene as a .blend")
     args = ap.parse_args(argv)
     folder = render_scene(
         args.name,
@@ -259,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
         args.samples,
         args.denoise,
         args.threads,
+        progress=args.progress,
+        blend=args.blend,
     )
     print(json.dumps({"folder": str(folder)}))
     return 0

@@ -128,6 +128,10 @@ class TrainConfig:
     lpips_weight: float = 0.05
     ssim_weight: float = 0.0
     depth_weight: float = 0.0  # L1 on inverse depth of rendered vs Blender depth
+    # L1 on inverse depth of the generator's per-input-view depth maps vs Blender's: direct
+    # supervision of the depth head (DepthSplat gets it from a pretrained depth model)
+    input_depth_weight: float = 0.0
+    init: str | None = None  # start from these weights (a fresh optimiser, step 0)
     grad_clip: float = 0.5
     warmup: int = 500
     log_every: int = 10
@@ -184,11 +188,19 @@ def render_loss(
                     dp_sum = dp_sum + (inv - 1 / gt_d[valid]).abs().mean()
     n = b_size * m
     parts = {"mse": mse_sum / n, "lpips": lp_sum / n, "ssim": ss_sum / n, "depth": dp_sum / n}
+    parts["input_depth"] = targets.new_zeros(())
+    if cfg.input_depth_weight > 0 and "input_depths" in batch:
+        gt_d = batch["input_depths"]  # [B,V,H,W], 0 = no surface
+        valid = gt_d > 0
+        if valid.any():
+            pred = output.depths[valid].clamp_min(1e-3)  # [B,V,H,W] -> [K]
+            parts["input_depth"] = (1 / pred - 1 / gt_d[valid]).abs().mean()
     loss = (
         parts["mse"]
         + cfg.lpips_weight * parts["lpips"]
         + cfg.ssim_weight * parts["ssim"]
         + cfg.depth_weight * parts["depth"]
+        + cfg.input_depth_weight * parts["input_depth"]
     )
     return loss, {k: float(v.detach()) for k, v in parts.items()}
 
@@ -321,6 +333,10 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             f"{out} holds another run's config but no checkpoint; pick a new --out"
         )
     step = 0
+    if ckpt is None and cfg.init:
+        from prosplat.checkpoints import read_checkpoint
+
+        model.load_state_dict(read_checkpoint(Path(cfg.init), "generator")[0])
     if ckpt is not None:
         model.load_state_dict(ckpt.weights)
         opt.load_state_dict(ckpt.state["optimizer"])
