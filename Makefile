@@ -29,7 +29,19 @@ test: $(STAMP)
 test-all: $(STAMP)
 	$(PY) -m pytest -m "slow or not slow"
 
+# The whole system's numbers (BENCHMARKS.md): renders the test and hard scenes once (skipped
+# when present; ~10 min), then speed against error, the hard-case suite and the rasterizer.
+HARD := textureless specular near_far thin_structures repeated_pattern inside_outside
+SCENES := $(VENV)/bin/prosplat scenes render --size 64 --inputs 6 --targets 8 --samples 16
+
 bench: $(STAMP)
+	$(SCENES) --seed 950000 --count 6 --out data/test64 --workers 2
+	seed=950100; for s in $(HARD); do \
+		$(SCENES) --seed $$seed --count 1 --scene $$s --out data/hard64 --workers 1 || exit 1; \
+		seed=$$((seed + 1)); \
+	done
+	$(VENV)/bin/prosplat bench points --data data/test64 data/hard64
+	$(VENV)/bin/prosplat bench hard --data data/test64 data/hard64
 	$(PY) benchmarks/render.py
 
 addon: $(STAMP)

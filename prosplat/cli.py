@@ -219,6 +219,23 @@ def write_scores(rows: list, out: Path) -> int:
     return 0
 
 
+def add_bench_parsers(sub) -> None:
+    """``prosplat bench points`` (speed against error) and ``prosplat bench hard`` (hard cases);
+    the options live beside their engines in :mod:`prosplat.bench`."""
+    from prosplat.bench import hard, points
+
+    bench = sub.add_parser("bench", help="speed against error, and the hard-case suite")
+    bench_sub = bench.add_subparsers(dest="bench_command", required=True)
+    for name, module, text in (
+        ("points", points, "time per view against PSNR/SSIM/LPIPS over operating points"),
+        ("hard", hard, "the whole pipeline on hard cases: finite outputs or clear errors"),
+    ):
+        p = bench_sub.add_parser(name, help=text, description=module.__doc__)
+        p.formatter_class = argparse.RawDescriptionHelpFormatter
+        module.add_arguments(p)
+        p.set_defaults(func=module.run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="prosplat", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -361,6 +378,8 @@ def build_parser() -> argparse.ArgumentParser:
     from prosplat.cli_improve import add_eval_parser, add_train_parsers
 
     add_train_parsers(train_sub)
+
+    add_bench_parsers(sub)
 
     ev = sub.add_parser("eval", help="evaluate models on rendered test scenes")
     ev_sub = ev.add_subparsers(dest="eval_command", required=True)
