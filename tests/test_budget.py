@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from prosplat import Camera, Gaussians, render
-from prosplat.budget import _bilinear, importance, prune_gaussians
+from prosplat.budget import _bilinear, _dither_rank, importance, prune_gaussians
 from prosplat.data.overlap import covisibility
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 from prosplat.metrics import psnr
@@ -172,17 +172,44 @@ def test_default_opacity_threshold_is_lossless(scene):
 
 
 @pytest.mark.parametrize("budget", [1000, 0.25, 0, 10**6])
-def test_budget_keeps_that_many_most_important(scene, budget):
+def test_budget_keeps_that_many_in_dither_order_and_enlarges_them(scene, budget):
     g, vi, depths, cams = scene
     _, keep_auto, auto = prune_gaussians(g, vi, depths, cams)
-    _, keep, stats = prune_gaussians(g, vi, depths, cams, budget=budget)
+    pruned, keep, stats = prune_gaussians(g, vi, depths, cams, budget=budget)
     want = budget if isinstance(budget, int) else math.floor(budget * 2 * HW)
-    assert stats["kept"] == int(keep.sum()) == min(want, auto["kept"])
+    assert stats["kept"] == int(keep.sum()) == len(pruned) == min(want, auto["kept"])
     assert stats["over_budget"] == auto["kept"] - stats["kept"]
     assert not (keep & ~keep_auto).any()  # the budget only removes more
     if 0 < stats["kept"] < auto["kept"]:
-        score = importance(g, vi, cams)
-        assert score[keep].min() >= score[keep_auto & ~keep].max()
+        rank = _dither_rank(S, S, "cpu").reshape(-1).repeat(2)
+        assert rank[keep].max() <= rank[keep_auto & ~keep].min()  # the even lattice first
+        for v in range(2):
+            grow = math.sqrt(int((keep_auto & (vi == v)).sum()) / int((keep & (vi == v)).sum()))
+            mine = (vi == v)[keep]
+            torch.testing.assert_close(pruned.scales[mine], g.scales[keep][mine] * grow)
+    elif stats["kept"] == auto["kept"]:
+        torch.testing.assert_close(pruned.scales, g.scales[keep])
+
+
+def test_dither_rank_is_an_even_lattice_at_every_level():
+    rank = _dither_rank(8, 8, "cpu")
+    assert sorted(rank.reshape(-1).tolist()) == list(range(64))
+    assert torch.equal(rank[:2, :2], torch.tensor([[0, 32], [48, 16]]))  # Bayer 8x8 corner
+    quarter = rank < 16  # 1/4: one pixel of every 2x2 block
+    assert (quarter.reshape(4, 2, 4, 2).sum(dim=(1, 3)) == 1).all()
+
+
+def test_a_thinned_budget_renders_closer_than_dropping_by_importance(scene):
+    """Holes cost more than a coarser even sampling: the budget's render at 1/4 of the
+    Gaussians is closer to the unpruned render than keeping the most important quarter."""
+    g, vi, depths, cams = scene
+    cam = orbit_cameras(3, S, S)[1]
+    full = render(g, cam).rgb
+    pruned, keep, _ = prune_gaussians(g, vi, depths, cams, budget=0.25)
+    by_importance = torch.argsort(importance(g, vi, cams), descending=True)[: len(pruned)]
+    even = float(psnr(render(pruned, cam).rgb, full))
+    holes = float(psnr(render(g[by_importance], cam).rgb, full))
+    assert even > holes + 3.0, (even, holes)
 
 
 def test_empty_input(scene):
