@@ -180,3 +180,21 @@ def test_table_marks_failures():
     assert table.count("**FAIL**") == 1 and "**no**" in table
     assert "| s | baseline | yes | yes |" in table
     assert not unclear.ok and ok.ok
+
+
+def test_summary_counts_per_case_and_skips_cases_that_do_not_apply():
+    from prosplat.bench.hard import hard_case_summary
+
+    rows = [
+        HardCaseResult("baseline", "a", True, None, None, 10.0, 12.0, 0.5, "x"),
+        HardCaseResult("baseline", "b", True, None, None, 14.0, 16.0, 0.7, "y"),
+        HardCaseResult("near_equals_far", "a", True, "ValueError: near", True, None, None, 0.0, ""),
+        HardCaseResult(
+            "specular", "a", True, None, None, None, None, 0.0, "n/a (no specular scene)"
+        ),
+        HardCaseResult("specular", "b", False, None, None, None, None, 0.1, "s"),
+    ]
+    table = hard_case_summary(rows).splitlines()
+    assert table[2] == "| baseline | 2 | 2 | 2 | 0 | 12.00 | 14.00 | 0.70 |"
+    assert table[3] == "| near_equals_far | 1 | 1 | 1 | 1 | — | — | 0.00 |"
+    assert table[4] == "| specular | 1 | 0 | 0 | 0 | — | — | 0.10 |"

@@ -338,6 +338,27 @@ def hard_case_table(results: Sequence[HardCaseResult]) -> str:
     return "\n".join(lines)
 
 
+def hard_case_summary(results: Sequence[HardCaseResult]) -> str:
+    """A markdown table, one row per case over all scenes: how many were ok, finite or a clear
+    error, and the mean PSNR where it is meaningful (the short form for BENCHMARKS.md)."""
+    lines = [
+        "| case | scenes | ok | finite | clear errors | mean PSNR raw | mean PSNR enh | max s |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for case in dict.fromkeys(r.case for r in results):
+        rows = [r for r in results if r.case == case]
+        applies = [r for r in rows if not r.note.startswith("n/a")]
+        raw = _mean([r.psnr_raw for r in applies if r.psnr_raw is not None])
+        enh = _mean([r.psnr_enhanced for r in applies if r.psnr_enhanced is not None])
+        lines.append(
+            f"| {case} | {len(applies)} | {sum(r.ok for r in applies)} | "
+            f"{sum(r.finite for r in applies)} | "
+            f"{sum(r.error is not None and bool(r.clear_error) for r in applies)} | "
+            f"{_db(raw)} | {_db(enh)} | {max((r.seconds for r in applies), default=0):.2f} |"
+        )
+    return "\n".join(lines)
+
+
 def _default_data() -> list[Path]:
     return [p for p in (Path("data/hard64"), Path("data/test64")) if p.exists()]
 
@@ -418,7 +439,9 @@ def run(args: argparse.Namespace) -> int:
     )
     out = _fresh_folder(args.out, args.overwrite)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "hard_cases.md").write_text(header + table + "\n")
+    summary = hard_case_summary(results)
+    print(summary)
+    (out / "hard_cases.md").write_text(header + summary + "\n\n" + table + "\n")
     rows = [dict(asdict(r), ok=r.ok) for r in results]
     (out / "hard_cases.json").write_text(json.dumps(rows, indent=1) + "\n")
     print(f"wrote {out / 'hard_cases.md'} and hard_cases.json ({seconds:.0f} s)")
