@@ -126,6 +126,7 @@ def render_scene_with_blender(cfg: DemoConfig, dest: Path, blend: Path) -> Path:
         *("--threads", str(os.cpu_count() or 1), "--progress", "--blend", str(blend)),
     ]
     log_lines: list[str] = []
+    folder: Path | None = None
     bar = tqdm(total=cfg.inputs + cfg.targets, desc="Blender: rendering views", unit="view")
     with subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1
@@ -139,7 +140,7 @@ def render_scene_with_blender(cfg: DemoConfig, dest: Path, blend: Path) -> Path:
             elif line.startswith("{"):
                 folder = Path(json.loads(line)["folder"])
     bar.close()
-    if proc.returncode != 0:
+    if proc.returncode != 0 or folder is None:
         tail = "".join(log_lines[-20:])
         raise RuntimeError(f"Blender failed to render the demo scene:\n{tail}")
     return folder
