@@ -152,3 +152,51 @@ def test_ablation_rows_score_the_same_views(setup, tmp_path) -> None:
     id_psnr = [s.psnr for s in scores if s.method == "identity"]
     assert gen_psnr == pytest.approx(id_psnr, abs=1e-4)
     assert {s.views for s in scores} == {2, 3} and all(s.gaussians > 0 for s in scores)
+
+
+def test_train_improve_on_a_local_sd_turbo_saves_merged_lora(setup, tmp_path) -> None:
+    """--pretrained trains LoRA on a diffusers-format model; the saved file has the adapters
+    folded in, loads without peft and enhances exactly like the trained model."""
+    pytest.importorskip("peft")
+    from safetensors.torch import save_file
+
+    from prosplat.improve.model import build_unet, build_vae
+
+    _, _, curated = setup
+    torch.manual_seed(0)
+    sd = SMALL.with_(unet_cross_attention=(True, True, False), scaling_factor=0.18215)
+    build_vae(sd).save_pretrained(tmp_path / "sd" / "vae")
+    build_unet(sd).save_pretrained(tmp_path / "sd" / "unet")
+    emb = torch.randn(1, 77, sd.cross_attention_dim)
+    save_file({"prompt_embedding": emb}, str(tmp_path / "sd" / "empty_prompt.safetensors"))
+    cfg = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "run"), steps=3, batch=4,
+                             lr=1e-2, save_every=3, lpips_weight=0.0, timestep=999,
+                             pretrained=str(tmp_path / "sd"), device="cpu")  # fmt: skip
+    path = train_improve(cfg, progress=False)
+    merged = load_improver(path)
+    assert not any("lora" in k for k in merged.state_dict())
+    assert merged.config.timestep == 999 and merged.config.residual is False
+    # the run's own checkpoint keeps the adapters (that is what a resume loads)
+    from safetensors import safe_open
+
+    with safe_open(str(tmp_path / "run" / "checkpoint.safetensors"), "pt") as f:
+        lora_keys = [k for k in f.keys() if "lora_B" in k]
+    assert lora_keys
+    # the merged file computes what base + trained adapters compute
+    from prosplat.improve.pretrained import from_diffusers
+
+    with_lora = from_diffusers(tmp_path / "sd", timestep=999)
+    with safe_open(str(tmp_path / "run" / "checkpoint.safetensors"), "pt") as f:
+        with_lora.load_state_dict({k: f.get_tensor(k) for k in f.keys()})
+    with_lora.eval()
+    with safe_open(str(tmp_path / "run" / "checkpoint.safetensors"), "pt") as f:
+        assert any(f.get_tensor(k).abs().max() > 0 for k in lora_keys)  # adapters trained
+    data = load_curated(curated)
+    raw, ref, fund, _ = curated_batch(data, torch.tensor([0, 1]), "paper", "cpu")
+    with torch.no_grad():
+        torch.testing.assert_close(
+            merged(raw, ref, fund), with_lora(raw, ref, fund), atol=1e-4, rtol=0
+        )
+    with pytest.raises(ValueError, match="--pretrained"):
+        train_improve(ImproveTrainConfig(**{**cfg.__dict__, "init": str(path),
+                                            "out": str(tmp_path / "x")}), progress=False)  # fmt: skip

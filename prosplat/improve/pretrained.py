@@ -153,3 +153,18 @@ def add_lora(model: ImproveModel, unet_rank: int = 8, vae_rank: int = 4) -> None
         ),
         adapter_name="vae_skip",
     )
+
+
+def merge_lora(model: ImproveModel) -> ImproveModel:
+    """Fold the LoRA adapters into the VAE and U-Net weights and drop them (in place).
+
+    The result is a plain :class:`ImproveModel` whose state dict has no ``lora_`` keys, so
+    :func:`~prosplat.improve.io.save_improver` writes a checkpoint that
+    :func:`~prosplat.improve.io.load_improver` (and ``ProSplat.from_pretrained``) load
+    without peft. A model without adapters is returned unchanged.
+    """
+    for sub in (model.unet, model.vae):
+        if any("lora_" in name for name, _ in sub.named_parameters()):
+            sub.fuse_lora(lora_scale=1.0)
+            sub.unload_lora()
+    return model

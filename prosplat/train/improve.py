@@ -45,6 +45,9 @@ class ImproveTrainConfig:
     out: str
     config: str = "tiny"
     init: str | None = None  # start from this improvement checkpoint instead of random
+    # a local diffusers-format SD-Turbo folder: build on its VAE/U-Net with LoRA adapters
+    # (only LoRA and the new modules train); the saved improve.safetensors has them merged
+    pretrained: str | None = None
     val: str | None = None  # curated validation file
     steps: int = 3000
     batch: int = 8
@@ -192,7 +195,16 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
 
     device = dist.device
     torch.manual_seed(cfg.seed)
-    if cfg.init:
+    if cfg.pretrained:
+        from prosplat.improve.pretrained import from_diffusers
+
+        if cfg.init or not cfg.denoise:
+            raise ValueError(
+                "--pretrained builds the model on SD-Turbo: it does not combine with --init "
+                "or --no-denoise"
+            )
+        model = from_diffusers(cfg.pretrained, timestep=cfg.timestep, reference=cfg.reference)
+    elif cfg.init:
         model = load_improver(cfg.init)
         asked = {"timestep": cfg.timestep, "denoise": cfg.denoise, "reference": cfg.reference}
         have = {k: getattr(model.config, k) for k in asked}
@@ -231,8 +243,11 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         run.close()
     final = Path(cfg.out) / "improve.safetensors"
     if dist.is_main:
+        from prosplat.improve.pretrained import merge_lora
+
         cmd = f"prosplat train improve {json.dumps(asdict(cfg))}"
-        save_improver(model.cpu(), final, overwrite=True, command=cmd, steps=str(run.step))
+        model = merge_lora(model.cpu())  # LoRA runs resume from their checkpoint, not this file
+        save_improver(model, final, overwrite=True, command=cmd, steps=str(run.step))
     return final
 
 
