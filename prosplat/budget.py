@@ -48,7 +48,7 @@ from torch import Tensor
 from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 
-__all__ = ["prune_gaussians", "importance"]
+__all__ = ["prune_gaussians", "prune_pixel_aligned", "importance"]
 
 _RANGE_SLACK = 1e-3  # relative: a Gaussian exactly at near/far is never dropped by rounding
 
@@ -355,6 +355,17 @@ def prune_gaussians(
     if scales is not None:
         kept = replace(kept, scales=scales[alive])
     return kept, alive, stats
+
+
+def prune_pixel_aligned(
+    gaussians: Gaussians, depths: Tensor, cameras: list[Camera], **kwargs
+) -> tuple[Gaussians, Tensor, dict]:
+    """:func:`prune_gaussians` for a generator's output: V·H·W Gaussians, view-major, one per
+    pixel of the V depth maps ``depths [V,H,W]`` (the view index follows from that layout).
+    ``kwargs`` go to :func:`prune_gaussians` (``budget``, ``near``/``far``, ...)."""
+    v, h, w = depths.shape
+    view_index = torch.arange(v, device=gaussians.device).repeat_interleave(h * w)
+    return prune_gaussians(gaussians, view_index, depths, cameras, **kwargs)
 
 
 def _dither_rank(h: int, w: int, device) -> Tensor:

@@ -27,12 +27,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 from tqdm import tqdm
 
 from prosplat.camera import Camera
-from prosplat.data.scene import SceneData, load_scene
+from prosplat.data.scene import SceneData, load_scene, resize_views
 
 DEMO_SCENE = "tabletop"  # a family or hard-scene name (scenes.builders)
 DEMO_SEED = 950002  # test split: never seen in training
@@ -157,18 +156,13 @@ def _remove_earlier_demo(out: Path) -> None:
 
 
 def downsample(scene: SceneData, size: int) -> tuple[Tensor, list[Camera]]:
-    """Images [V,3,size,size] (antialiased bilinear) and the cameras resized to match."""
-    imgs = scene.images
-    if imgs.shape[-1] != size or imgs.shape[-2] != size:
-        imgs = F.interpolate(
-            imgs, size=(size, size), mode="bilinear", align_corners=False, antialias=True
-        ).clamp(0, 1)
-    return imgs, [c.resized(size, size) for c in scene.cameras]
+    """The scene's images [V,3,size,size] and cameras at the model resolution."""
+    return resize_views(scene.images, scene.cameras, size)
 
 
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Run the whole demo into a fresh folder (see the module docstring); returns the numbers."""
-    from prosplat.budget import prune_gaussians
+    from prosplat.budget import prune_pixel_aligned
     from prosplat.cli import _fresh_folder
     from prosplat.demo_report import write_report
     from prosplat.metrics import lpips, psnr, ssim
@@ -199,9 +193,8 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     t_recon = time.perf_counter() - t0
     g_all, depths = recon.gaussians(0), recon.depths[0]
     t0 = time.perf_counter()
-    view_index = torch.arange(len(inp)).repeat_interleave(cfg.size * cfg.size)
     budget = None if cfg.budget is None else (int(cfg.budget) if cfg.budget > 1 else cfg.budget)
-    gaussians, _, stats = prune_gaussians(g_all, view_index, depths, in_cams, budget=budget)
+    gaussians, _, stats = prune_pixel_aligned(g_all, depths, in_cams, budget=budget)
     t_prune = time.perf_counter() - t0
     print(
         f"reconstructed {stats['input']:,} Gaussians in {t_recon:.2f} s; the budget kept "

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from prosplat.budget import prune_gaussians
+from prosplat.budget import prune_pixel_aligned
 from prosplat.camera import Camera
 from prosplat.data.rigs import farthest_point_sampling
 from prosplat.data.scene import SceneData
@@ -150,10 +150,7 @@ def evaluate_scene(
             g, depths = method(images, cams, near, far)  # methods that optimise need autograd
             g = g.detach()
             if depths is not None:
-                view_index = torch.arange(n).repeat_interleave(depths.shape[1] * depths.shape[2])
-                g, _, _ = prune_gaussians(
-                    g, view_index, depths, cams, near=None, far=None, budget=budget
-                )
+                g = prune_pixel_aligned(g, depths, cams, budget=budget)[0]
             recon = time.perf_counter() - t0
             for t in scene.target_indices:
                 t1 = time.perf_counter()

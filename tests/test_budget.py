@@ -8,7 +8,13 @@ import pytest
 import torch
 
 from prosplat import Camera, Gaussians, render
-from prosplat.budget import _bilinear, _dither_rank, importance, prune_gaussians
+from prosplat.budget import (
+    _bilinear,
+    _dither_rank,
+    importance,
+    prune_gaussians,
+    prune_pixel_aligned,
+)
 from prosplat.data.overlap import covisibility
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 from prosplat.metrics import psnr
@@ -255,3 +261,10 @@ def test_invalid_arguments_name_themselves(scene, change, name):
     args = change({"gaussians": g, "view_index": vi, "depths": depths, "cameras": cams})
     with pytest.raises(ValueError, match=name):
         prune_gaussians(**args)
+
+
+def test_prune_pixel_aligned_derives_the_view_index_from_the_depth_maps(scene):
+    g, vi, depths, cams = scene
+    _, keep, stats = prune_gaussians(g, vi, depths, cams, budget=0.3)
+    pruned, keep2, stats2 = prune_pixel_aligned(g, depths, cams, budget=0.3)
+    assert torch.equal(keep, keep2) and stats == stats2 and len(pruned) == stats["kept"]

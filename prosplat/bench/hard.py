@@ -141,11 +141,10 @@ def _mean(values: list[float]) -> float | None:
 
 def _run_pipeline(model, plan: Run, dtypes: Sequence[torch.dtype]) -> dict:
     """Reconstruct, prune, render and enhance; returns what the result needs."""
-    from prosplat.budget import prune_gaussians
+    from prosplat.budget import prune_pixel_aligned
     from prosplat.metrics import psnr
 
     out = model.reconstruct_full(plan.images, plan.cameras, plan.near, plan.far)
-    n_views, _, h, w = plan.images.shape
     named = {
         f"generator.{k}": getattr(out, k)
         for k in ("means", "quats", "scales", "opacities", "sh", "depths", "confidence")
@@ -154,10 +153,7 @@ def _run_pipeline(model, plan: Run, dtypes: Sequence[torch.dtype]) -> dict:
     if bad:  # .gaussians() would raise on them; report the NaN instead
         return dict(bad=bad, psnr_raw=None, psnr_enh=None, notes=[], problems=[])
     g = out.gaussians(0).detach()
-    view_index = torch.arange(n_views).repeat_interleave(h * w)
-    g, _, stats = prune_gaussians(
-        g, view_index.to(g.device), out.depths[0], plan.cameras, near=None, far=None, budget=None
-    )
+    g, _, stats = prune_pixel_aligned(g, out.depths[0], plan.cameras)
     named = _ply_round_trip(g) if len(g) else {}
     bad += _nonfinite(named)
     notes = [f"{stats['kept']}/{stats['input']} kept"]

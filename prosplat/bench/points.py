@@ -27,13 +27,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
-from torch import Tensor
 
 from prosplat.bench import pareto
-from prosplat.budget import prune_gaussians
-from prosplat.camera import Camera
-from prosplat.data.scene import SceneData
+from prosplat.budget import prune_pixel_aligned
+from prosplat.data.scene import SceneData, resize_views
 from prosplat.evaluate import (
     Method,
     generator_method,
@@ -167,19 +164,6 @@ def build_points(axes: Axes, plane_sweep: bool = False) -> list[Point]:
     return points
 
 
-def resize(images: Tensor, cameras: list[Camera], size: int) -> tuple[Tensor, list[Camera]]:
-    """images [V,3,H,W] -> [V,3,size,W'] (antialiased bilinear, as reference_at) with their
-    cameras; W' keeps the aspect ratio, rounded to a multiple of 32."""
-    h, w = images.shape[-2:]
-    width = max(32, round(w * size / h / 32) * 32)
-    if (h, w) == (size, width):
-        return images, cameras
-    out = F.interpolate(
-        images, size=(size, width), mode="bilinear", antialias=True, align_corners=False
-    )
-    return out.clamp(0, 1), [c.resized(width, size) for c in cameras]
-
-
 def reconstruct(method: Method, inputs: tuple, budget) -> tuple:
     """(Gaussians, seconds): reconstruction and, for pixel-aligned methods, pruning."""
     images, cams, near, far = inputs  # images [V,3,H,W]
@@ -187,8 +171,7 @@ def reconstruct(method: Method, inputs: tuple, budget) -> tuple:
     g, depths = method(images, cams, near, far)  # depths [V,H,W] or None (optimised)
     g = g.detach()
     if depths is not None:
-        view_index = torch.arange(len(cams)).repeat_interleave(depths.shape[1] * depths.shape[2])
-        g = prune_gaussians(g, view_index, depths, cams, budget=budget)[0]
+        g = prune_pixel_aligned(g, depths, cams, budget=budget)[0]
     return g, time.perf_counter() - t0
 
 
@@ -214,11 +197,13 @@ def measure_scene(
         if (p.size, p.views) not in inputs:
             idx = pick_inputs(scene, p.views)
             near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
-            imgs, cams = resize(scene.images[idx], [scene.cameras[i] for i in idx], p.size)
+            imgs, cams = resize_views(scene.images[idx], [scene.cameras[i] for i in idx], p.size)
             inputs[p.size, p.views] = (imgs, cams, near, far)
         if p.size not in targets:
             t_idx = scene.target_indices
-            targets[p.size] = resize(scene.images[t_idx], [scene.cameras[i] for i in t_idx], p.size)
+            targets[p.size] = resize_views(
+                scene.images[t_idx], [scene.cameras[i] for i in t_idx], p.size
+            )
     recon_s, gaussians = defaultdict(list), {}
     view_ms, views = defaultdict(list), {}
     for r in range(repeats):  # interleaved: every point once per repeat

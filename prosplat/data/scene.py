@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.camera import Camera
@@ -134,3 +135,17 @@ def load_scene(folder: str | Path, load_depth: bool = True) -> SceneData:
         meta=tf.meta,
         folder=folder,
     )
+
+
+def resize_views(images: Tensor, cameras: list[Camera], size: int) -> tuple[Tensor, list[Camera]]:
+    """images [V,3,H,W] -> [V,3,size,W'] (antialiased bilinear, as ``reference_at``) with their
+    cameras resized to match; W' keeps the aspect ratio, rounded to a multiple of 32 (the
+    generator's stride). Used to run models at another resolution than the data's."""
+    h, w = images.shape[-2:]
+    width = max(32, round(w * size / h / 32) * 32)
+    if (h, w) == (size, width):
+        return images, cameras
+    out = F.interpolate(
+        images, size=(size, width), mode="bilinear", antialias=True, align_corners=False
+    )
+    return out.clamp(0, 1), [c.resized(width, size) for c in cameras]

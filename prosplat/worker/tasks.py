@@ -169,7 +169,7 @@ def task_export_ply(params: dict, progress: Progress) -> dict:
 
 def task_reconstruct(params: dict, progress: Progress) -> dict:
     """Generator on the input views -> pruned Gaussians (point attributes, optional PLY)."""
-    from prosplat.budget import prune_gaussians
+    from prosplat.budget import prune_pixel_aligned
 
     t0 = time.perf_counter()
     device = pick_device(params.get("device"))
@@ -188,9 +188,8 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     t_gen = time.perf_counter() - t1
     progress(0.8, "pruning to the Gaussian budget")
     g = out.gaussians(0).detach().to("cpu")
-    view_index = torch.arange(len(cameras)).repeat_interleave(h * w)
     budget = params.get("budget") or None
-    g, _, stats = prune_gaussians(g, view_index, out.depths[0].cpu(), cameras, budget=budget)
+    g, _, stats = prune_pixel_aligned(g, out.depths[0].cpu(), cameras, budget=budget)
     if len(g) == 0:
         raise ValueError("the generator produced no visible Gaussians for these views")
     if params.get("ply"):
