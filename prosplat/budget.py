@@ -336,9 +336,9 @@ def prune_gaussians(
                 rank = _dither_rank(h, w, g.device).reshape(-1).repeat(v)[idx]
                 order = order[torch.argsort(rank[order], stable=True)]
             over[idx[order[k:]]] = True
-            before = torch.bincount(view_index[alive], minlength=len(cameras))
             alive &= ~over
             if pixel_aligned:
+                before = torch.bincount(view_index[idx], minlength=len(cameras))
                 after = torch.bincount(view_index[alive], minlength=len(cameras))
                 grow = torch.sqrt(before / after.clamp_min(1))  # [V] spacing ratio per view
                 scales = g.scales * grow[view_index, None].to(g.scales.dtype)

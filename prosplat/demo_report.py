@@ -79,9 +79,7 @@ def overview(views: list[ViewResult], path: Path) -> None:
     rows = overview_views(views)
     fig, axes = plt.subplots(len(rows), 4, figsize=(9, 2.35 * len(rows)), dpi=100, squeeze=False)
     for r, v in enumerate(rows):
-        titles = _panel_titles(v) if r == 0 else [""] * 4
-        if r == 0:
-            titles = [t for _, t in PANELS]
+        titles = [t for _, t in PANELS] if r == 0 else [""] * 4  # column headings, once
         _draw_row(axes[r], v, titles)
         axes[r][0].set_ylabel(
             f"view {v.index}\n{v.kind[:6]}.\n{v.psnr_raw:.1f} -> {v.psnr_enhanced:.1f} dB",
