@@ -54,6 +54,7 @@ def configure_render(size: int, samples: int, denoise: bool, seed: int, threads:
     sc.render.dither_intensity = 0.0
     sc.render.threads_mode = "FIXED"
     sc.render.threads = max(1, threads)
+    sc.render.use_persistent_data = True  # keep the BVH and shaders between the views
     sc.display_settings.display_device = "sRGB"
     sc.view_settings.view_transform = "Standard"
     sc.view_settings.look = "None"
