@@ -163,6 +163,32 @@ def cmd_scenes_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scenes_pack(args: argparse.Namespace) -> int:
+    """Pack scene folders into size-bounded .npz files (:mod:`prosplat.data.packed`)."""
+    from tqdm import tqdm
+
+    from prosplat.data.dataset import find_scenes
+    from prosplat.data.packed import pack_scenes
+
+    folders = find_scenes(args.data)[args.first :]
+    if args.count is not None:
+        folders = folders[: args.count]
+    if not folders:
+        print(f"prosplat scenes pack: no scene folders under {args.data}", file=sys.stderr)
+        return 2
+    # estimate the scenes per pack from the first one, then fill each pack up to the bound
+    probe = pack_scenes(folders[:1], args.out.with_name(f".{args.out.name}.probe.npz"), True)
+    per_scene = probe.stat().st_size
+    probe.unlink()
+    per_pack = max(1, int(args.max_mb * 2**20 * 0.9 // per_scene))
+    chunks = [folders[i : i + per_pack] for i in range(0, len(folders), per_pack)]
+    for i, chunk in enumerate(tqdm(chunks, desc="packing", unit="pack")):
+        path = args.out.with_name(f"{args.out.name}_{i:03d}.npz")
+        pack_scenes(chunk, path)
+        print(f"{path}: {len(chunk)} scenes, {path.stat().st_size / 2**20:.1f} MB")
+    return 0
+
+
 def cmd_train_generator(args: argparse.Namespace) -> int:
     from dataclasses import fields
 
@@ -311,6 +337,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     lst.add_argument("--out", type=Path, required=True, help="dataset folder")
     lst.set_defaults(func=cmd_scenes_list)
+    pk = scenes_sub.add_parser(
+        "pack",
+        help="pack rendered scene folders into .npz files to move training data",
+        description="Pack the scene folders under --data into OUT_000.npz, OUT_001.npz, ... "
+        "of at most --max-mb each (JPEG q95 images, float16 depth, float64 cameras): "
+        "training reads packs like folders, with only numpy, Pillow and torch. "
+        "Existing pack files are never replaced.",
+    )
+    pk.add_argument("--data", type=Path, required=True, help="dataset folder of scene folders")
+    pk.add_argument("--out", type=Path, required=True, help="pack path prefix, e.g. packs/train")
+    pk.add_argument("--max-mb", type=float, default=48.0, help="size bound per pack (default 48)")
+    pk.add_argument("--first", type=int, default=0, help="skip the first N scenes (sorted)")
+    pk.add_argument("--count", type=int, default=None, help="pack at most N scenes")
+    pk.set_defaults(func=cmd_scenes_pack)
 
     train = sub.add_parser("train", help="train models on rendered scenes")
     train_sub = train.add_subparsers(dest="train_command", required=True)
@@ -322,13 +362,18 @@ def build_parser() -> argparse.ArgumentParser:
         "the CPU: run as is; several GPUs: torchrun --nproc_per_node K -m prosplat "
         "train generator ...",
     )
+    from prosplat.generator.config import PRESETS
     from prosplat.train.generator import TrainConfig, parse_inputs
 
     defaults = TrainConfig(data="", out="")
-    tg.add_argument("--data", required=True, help="training dataset folder")
+    tg.add_argument(
+        "--data",
+        required=True,
+        help="training dataset folder(s) or scene packs (.npz, `prosplat scenes pack`), comma-separated",
+    )
     tg.add_argument("--out", required=True, help="run folder (checkpoints, log.jsonl)")
     tg.add_argument("--val", default=None, help="validation dataset folder (optional)")
-    tg.add_argument("--config", default=defaults.config, choices=["tiny", "base"])
+    tg.add_argument("--config", default=defaults.config, choices=sorted(PRESETS))
     for name in (
         "steps",
         "batch",
@@ -339,6 +384,7 @@ def build_parser() -> argparse.ArgumentParser:
         "val_scenes",
         "save_every",
         "seed",
+        "cache_scenes",
     ):
         tg.add_argument(
             f"--{name.replace('_', '-')}",
@@ -354,6 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ssim_weight",
         "depth_weight",
         "input_depth_weight",
+        "input_render_weight",
         "grad_clip",
     ):
         tg.add_argument(
@@ -369,6 +416,17 @@ def build_parser() -> argparse.ArgumentParser:
         default=defaults.inputs,
         help="input views per step: a count 2-6, or a set like 2,4,6 drawn from each step "
         f"(default {defaults.inputs})",
+    )
+    tg.add_argument(
+        "--sizes",
+        default=defaults.sizes,
+        help="image sizes drawn per step, e.g. 64,128 (multiples of 32, at most the data's; "
+        "default: the data's size)",
+    )
+    tg.add_argument(
+        "--any-view",
+        action="store_true",
+        help="draw inputs and targets from all of a scene's views, not its input/target split",
     )
     tg.add_argument(
         "--init", default=None, help="start from these generator weights (fresh optimiser)"

@@ -181,6 +181,27 @@ def plane_features(cam: Camera, z0: float, channels: int = 16) -> torch.Tensor:
     return torch.cat([phase.cos(), phase.sin()], -1).permute(2, 0, 1).float()
 
 
+def test_fine_matching_adds_a_half_resolution_volume_that_gets_gradients():
+    """fine_matching_channels > 0: the 1/2-resolution cost volume is built from its own
+    features and feeds the depth head; every new parameter learns, and the default (0) keeps
+    the v1 parameter layout (the shipped v1 weights load strictly)."""
+    torch.manual_seed(2)
+    cfg = GeneratorConfig(**{**SMALL.to_dict(), "fine_matching_channels": 4})
+    model = Generator(cfg).train()
+    cams = rig(3, 32, 32)
+    images, K, w2c = batch(cams[::2])
+    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
+    render_loss(model, images, K, w2c, cams[1], target).backward()
+    for name in ("encoder.fine.weight", "depth_head.fine_pool.0.weight", "depth_head.fine_gain"):
+        grad = dict(model.named_parameters())[name].grad
+        assert grad is not None and grad.abs().max() > 0, name
+    plain = set(Generator(SMALL).state_dict())
+    assert plain < set(model.state_dict())
+    assert not any(k.startswith(("encoder.fine", "depth_head.fine")) for k in plain)
+    with pytest.raises(ValueError, match="fine_matching_channels"):
+        GeneratorConfig(fine_matching_channels=-1)
+
+
 def test_warp_grid_matches_camera_projection():
     """The grid for a candidate depth samples the neighbour exactly where Camera.project puts
     the reference pixel centre lifted to that depth (pixel centres at +0.5, align_corners=False)."""

@@ -53,6 +53,8 @@ class SceneDataset(Dataset):
     ``target_images [M,3,H,W]``, ``target_K``, ``target_w2c``, ``target_depths [M,H,W]``,
     ``input_depths [N,H,W]``, ``near``/``far`` (scalars over the inputs), ``scene`` index.
 
+    ``roots`` may also name scene packs (``.npz``, :mod:`prosplat.data.packed`).
+
     Scenes are loaded on demand and kept in a least-recently-used cache of ``cache_size``
     scenes, so memory stays bounded however many scenes the dataset holds (a 128² scene with
     12 views and depth is ~2.4 MB; the old keep-everything cache grew to GBs on real sets).
@@ -64,6 +66,9 @@ class SceneDataset(Dataset):
         n_targets: targets per item, drawn from its target views.
         seed: sampling is a pure function of (seed, epoch, index, n_inputs).
         cache_size: scenes kept in memory (0 = load every item from disk).
+        any_view: draw inputs and targets from all of a scene's views, not from its
+            input/target split: a 16-view trajectory then gives a new rig (baseline,
+            interpolation or extrapolation targets) every time it is drawn.
     """
 
     def __init__(
@@ -73,15 +78,26 @@ class SceneDataset(Dataset):
         n_targets: int = 1,
         seed: int = 0,
         cache_size: int = 32,
+        any_view: bool = False,
     ):
+        from prosplat.data.packed import PACK_SUFFIX, Pack
+
         roots = [roots] if isinstance(roots, (str, Path)) else roots
-        self.folders = [f for r in roots for f in find_scenes(r)]
+        # each scene: a folder, or (pack, index in the pack)
+        self.folders: list[Path | tuple[Pack, int]] = []
+        for r in roots:
+            if Path(r).suffix == PACK_SUFFIX:
+                pack = Pack(r)
+                self.folders += [(pack, i) for i in range(len(pack))]
+            else:
+                self.folders += find_scenes(r)
         if not self.folders:
             raise FileNotFoundError(f"no scenes (folders with transforms.json) under {roots}")
         if cache_size < 0:
             raise ValueError(f"cache_size must be >= 0 scenes, got {cache_size}")
         self.n_inputs = _check_inputs(n_inputs)
         self.n_targets, self.seed, self.epoch, self.cache_size = n_targets, seed, 0, cache_size
+        self.any_view = any_view
         self._cache: OrderedDict[int, SceneData] = OrderedDict()
 
     def set_epoch(self, epoch: int) -> None:
@@ -102,7 +118,8 @@ class SceneDataset(Dataset):
         if sc is not None:
             self._cache.move_to_end(index)
             return sc
-        sc = load_scene(self.folders[index])
+        source = self.folders[index]
+        sc = source[0].scene(source[1]) if isinstance(source, tuple) else load_scene(source)
         if self.cache_size > 0:
             self._cache[index] = sc
             while len(self._cache) > self.cache_size:
@@ -119,6 +136,14 @@ class SceneDataset(Dataset):
         # A string seed: the same draw on every platform and Python build (no hash()).
         rng = random.Random(f"prosplat-item/{self.seed}/{epoch}/{index}/{n_inputs}")
         ins, tgs = sc.input_indices, sc.target_indices
+        if self.any_view:
+            if len(sc) < n_inputs + self.n_targets:
+                raise ValueError(
+                    f"{sc.folder}: has {len(sc)} views, the dataset asks for {n_inputs} inputs + "
+                    f"{self.n_targets} targets; render scenes with more views"
+                )
+            ins = sorted(rng.sample(range(len(sc)), n_inputs))
+            tgs = [i for i in range(len(sc)) if i not in ins]
         if len(ins) < n_inputs or len(tgs) < self.n_targets:
             raise ValueError(
                 f"{sc.folder}: has {len(ins)} inputs / {len(tgs)} targets, the dataset asks for "

@@ -31,6 +31,10 @@ class GeneratorConfig:
         attention_mlp_ratio: hidden width of the transformer MLP relative to the channels.
         cost_volume_views: k, the nearest views (by camera-centre distance) that each view
             matches against; with fewer other views, all of them are used.
+        fine_matching_channels: channels of the 1/2-resolution matching features; > 0 adds a
+            second plane-sweep cost volume at 1/2 resolution (over the same candidates) to the
+            depth head, so that a wide baseline, whose disparities span many 1/4-resolution
+            cells, still finds a sharp peak. 0 (v1 weights) leaves it out.
         mono_channels: channels of the monocular branch (stands in for DepthSplat's ViT).
         mono_blocks: residual blocks in the monocular branch (dilations cycle 1, 2, 4).
         unet_channels: U-Net channels per level (level 0 at 1/4 resolution, each next level
@@ -53,6 +57,7 @@ class GeneratorConfig:
     attention_splits: int = 2
     attention_mlp_ratio: int = 2
     cost_volume_views: int = 3
+    fine_matching_channels: int = 0
     mono_channels: int = 32
     mono_blocks: int = 3
     unet_channels: tuple[int, ...] = (32, 40, 48, 64)
@@ -81,8 +86,10 @@ class GeneratorConfig:
             raise ValueError(
                 f"GeneratorConfig.num_depth_candidates must be >= 2, got {self.num_depth_candidates}"
             )
-        if self.attention_layers < 0 or self.mono_blocks < 0:
-            raise ValueError("GeneratorConfig.attention_layers and mono_blocks must be >= 0")
+        if self.attention_layers < 0 or self.mono_blocks < 0 or self.fine_matching_channels < 0:
+            raise ValueError(
+                "GeneratorConfig.attention_layers, mono_blocks and fine_matching_channels must be >= 0"
+            )
         if self.feature_channels % self.attention_heads:
             raise ValueError(
                 f"GeneratorConfig.attention_heads ({self.attention_heads}) must divide "
@@ -152,6 +159,25 @@ class GeneratorConfig:
 #: Trainable on a 2-core CPU at 64-128 px in hours (see the parameter count in the tests' report).
 TINY = GeneratorConfig()
 
+#: v2: trained on a GPU at 64 and 128 px, still light enough for the CPU at 256 px. Twice the
+#: 1.5x the depth candidates of ``tiny`` and a 1/2-resolution cost volume: geometry from
+#: matching.
+SMALL = GeneratorConfig(
+    feature_channels=48,
+    num_depth_candidates=48,
+    attention_layers=2,
+    attention_heads=2,
+    attention_splits=2,
+    attention_mlp_ratio=2,
+    cost_volume_views=3,
+    fine_matching_channels=16,
+    mono_channels=48,
+    mono_blocks=3,
+    unet_channels=(48, 64, 96, 128),
+    refine_channels=24,
+    sh_degree=0,
+)
+
 #: For a GPU at 256 px and up.
 BASE = GeneratorConfig(
     feature_channels=128,
@@ -168,11 +194,11 @@ BASE = GeneratorConfig(
     sh_degree=2,
 )
 
-PRESETS: dict[str, GeneratorConfig] = {"tiny": TINY, "base": BASE}
+PRESETS: dict[str, GeneratorConfig] = {"tiny": TINY, "small": SMALL, "base": BASE}
 
 
 def preset(name: str) -> GeneratorConfig:
-    """A preset by name ("tiny" or "base")."""
+    """A preset by name ("tiny", "small" or "base")."""
     try:
         return PRESETS[name.lower()]
     except KeyError:

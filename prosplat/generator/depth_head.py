@@ -51,23 +51,49 @@ class UNet(nn.Module):
 
 
 class DepthHead(nn.Module):
-    """Cost volume + monocular + matching features -> depth distribution at 1/4 resolution."""
+    """Cost volume + monocular + matching features -> depth distribution at 1/4 resolution.
 
-    def __init__(self, depth_candidates: int, mono_channels: int, feature_channels: int, unet):
+    With ``fine_cost`` a second, 1/2-resolution cost volume over the same candidates comes in
+    through a stride-2 conv (learned pooling that keeps the peak's position along D) and, average
+    pooled, as a second matching prior on the logits.
+    """
+
+    def __init__(
+        self,
+        depth_candidates: int,
+        mono_channels: int,
+        feature_channels: int,
+        unet,
+        fine_cost: bool = False,
+    ):
         super().__init__()
-        c_in = depth_candidates + mono_channels + feature_channels
+        d = depth_candidates
+        self.fine_pool = (
+            nn.Sequential(nn.Conv2d(d, d, 3, stride=2, padding=1), nn.GELU()) if fine_cost else None
+        )
+        c_in = d * (2 if fine_cost else 1) + mono_channels + feature_channels
         self.unet = UNet(c_in, unet)
-        self.logits = nn.Conv2d(unet[0], depth_candidates, 3, padding=1)
+        self.logits = nn.Conv2d(unet[0], d, 3, padding=1)
         # The raw correlation is also added to the logits: a matching prior from step one. A flat
         # (zero-baseline) volume shifts all logits equally, so softmax ignores it.
         self.cost_gain = nn.Parameter(torch.ones(()))
+        self.fine_gain = nn.Parameter(torch.ones(())) if fine_cost else None
 
-    def forward(self, cost: Tensor, mono: Tensor, feats: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """cost [N,D,h,w], mono [N,Cm,h,w], feats [N,C,h,w] ->
+    def forward(
+        self, cost: Tensor, mono: Tensor, feats: Tensor, fine: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """cost [N,D,h,w], mono [N,Cm,h,w], feats [N,C,h,w], fine [N,D,2h,2w] or None ->
         t [N,1,h,w] normalised inverse depth, confidence [N,1,h,w], hidden [N,U0,h,w]."""
         d = cost.shape[1]
-        hidden = self.unet(torch.cat([cost, mono, feats], dim=1))  # [N,U0,h,w]
-        logits = self.logits(hidden) + self.cost_gain * cost  # [N,D,h,w]
+        if (fine is None) != (self.fine_pool is None):
+            raise ValueError("DepthHead: pass the fine cost volume exactly when built with it")
+        parts = [cost, mono, feats]
+        prior = self.cost_gain * cost  # [N,D,h,w]
+        if fine is not None:
+            parts.insert(1, self.fine_pool(fine))  # [N,D,h,w]
+            prior = prior + self.fine_gain * F.avg_pool2d(fine, 2)
+        hidden = self.unet(torch.cat(parts, dim=1))  # [N,U0,h,w]
+        logits = self.logits(hidden) + prior  # [N,D,h,w]
         prob = torch.softmax(logits, dim=1)  # [N,D,h,w]
         t_cand = torch.linspace(1.0, 0.0, d, dtype=cost.dtype, device=cost.device)  # near->far
         t = (prob * t_cand[None, :, None, None]).sum(1, keepdim=True)  # [N,1,h,w] in [0,1]

@@ -20,19 +20,22 @@ from prosplat.generator.layers import ConvNormAct, ResBlock
 
 
 class ConvEncoder(nn.Module):
-    """[N,3,H,W] images in [-1,1] -> [N,C,H/4,W/4] features (two stride-2 stages)."""
+    """[N,3,H,W] images in [-1,1] -> [N,C,H/4,W/4] features (two stride-2 stages), plus the
+    1/2-resolution stage's [N,C/2,H/2,W/2] for fine matching."""
 
     def __init__(self, channels: int) -> None:
         super().__init__()
         half = max(channels // 2, 8)
+        self.half_channels = half
         self.stage1 = nn.Sequential(ConvNormAct(3, half, stride=2), ResBlock(half))  # 1/2
         self.stage2 = nn.Sequential(
             ConvNormAct(half, channels, stride=2), ResBlock(channels), ResBlock(channels)
         )  # 1/4
         self.out = nn.Conv2d(channels, channels, 1)
 
-    def forward(self, x: Tensor) -> Tensor:
-        return self.out(self.stage2(self.stage1(x)))  # [N,C,H/4,W/4]
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        half = self.stage1(x)  # [N,C/2,H/2,W/2]
+        return self.out(self.stage2(half)), half  # [N,C,H/4,W/4], [N,C/2,H/2,W/2]
 
 
 def sine_position_encoding(h: int, w: int, channels: int, like: Tensor) -> Tensor:
@@ -162,14 +165,35 @@ class CrossViewTransformer(nn.Module):
 
 
 class FeatureEncoder(nn.Module):
-    """Images [B,V,3,H,W] in [-1,1] -> matching features [B,V,C,H/4,W/4]."""
+    """Images [B,V,3,H,W] in [-1,1] -> matching features [B,V,C,H/4,W/4], and with
+    ``fine_channels`` > 0 also per-view fine features [B,V,Cf,H/2,W/2].
 
-    def __init__(self, channels: int, layers: int, heads: int, splits: int, mlp_ratio: int):
+    The fine features skip the transformer: they are for the 1/2-resolution cost volume, where
+    a wide-baseline match needs pixels small enough to find a peak, and local appearance
+    (which transfers from synthetic scenes to photos) is what matches there.
+    """
+
+    def __init__(
+        self,
+        channels: int,
+        layers: int,
+        heads: int,
+        splits: int,
+        mlp_ratio: int,
+        fine_channels: int = 0,
+    ):
         super().__init__()
         self.cnn = ConvEncoder(channels)
         self.transformer = CrossViewTransformer(channels, layers, heads, splits, mlp_ratio)
+        self.fine = (
+            nn.Conv2d(self.cnn.half_channels, fine_channels, 1) if fine_channels > 0 else None
+        )
 
-    def forward(self, images: Tensor) -> Tensor:
+    def forward(self, images: Tensor) -> tuple[Tensor, Tensor | None]:
         b, v = images.shape[:2]
-        f = self.cnn(images.flatten(0, 1))  # [B*V,C,h,w]
-        return self.transformer(f.view(b, v, *f.shape[1:]))  # [B,V,C,h,w]
+        f, half = self.cnn(images.flatten(0, 1))  # [B*V,C,h,w], [B*V,C/2,2h,2w]
+        coarse = self.transformer(f.view(b, v, *f.shape[1:]))  # [B,V,C,h,w]
+        if self.fine is None:
+            return coarse, None
+        fine = self.fine(half)  # [B*V,Cf,2h,2w]
+        return coarse, fine.view(b, v, *fine.shape[1:])

@@ -57,10 +57,15 @@ class Generator(nn.Module):
             c.attention_heads,
             c.attention_splits,
             c.attention_mlp_ratio,
+            c.fine_matching_channels,
         )
         self.monocular = MonocularBranch(c.mono_channels, c.mono_blocks)
         self.depth_head = DepthHead(
-            c.num_depth_candidates, c.mono_channels, c.feature_channels, c.unet_channels
+            c.num_depth_candidates,
+            c.mono_channels,
+            c.feature_channels,
+            c.unet_channels,
+            fine_cost=c.fine_matching_channels > 0,
         )
         self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels)
         self.adapter = GaussianAdapter(
@@ -176,14 +181,17 @@ class Generator(nn.Module):
         b, v, _, h, w = images.shape
 
         x = images * 2 - 1  # [B,V,3,H,W] in [-1,1]
-        feats = self.encoder(x)  # [B,V,C,h/4,w/4] multi-view features
+        feats, fine = self.encoder(x)  # [B,V,C,h/4,w/4] multi-view, [B,V,Cf,h/2,w/2] or None
         mono = self.monocular(x.flatten(0, 1))  # [BV,Cm,h/4,w/4]
 
         cost = self.cost_volume(feats, K, w2c, near, far, (h, w))  # [B,V,D,h/4,w/4]
+        fine_cost = None
+        if fine is not None:
+            fine_cost = self.cost_volume(fine, K, w2c, near, far, (h, w)).flatten(0, 1)
 
         t, conf, hidden = self.depth_head(
-            cost.flatten(0, 1), mono, feats.flatten(0, 1)
-        )  # [BV,1,h,w], [BV,1,h,w], [BV,U0,h,w]
+            cost.flatten(0, 1), mono, feats.flatten(0, 1), fine_cost
+        )  # [BV,1,h/4,w/4] x2, [BV,U0,h/4,w/4]
         t, conf, rfeat = self.refiner(x.flatten(0, 1), t, conf, hidden)  # [BV,1,H,W] x2, [BV,R,H,W]
 
         inv_near = (1.0 / near).repeat_interleave(v)[:, None, None]  # [BV,1,1]

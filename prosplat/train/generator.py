@@ -111,6 +111,59 @@ def parse_inputs(text: str) -> int | tuple[int, ...]:
     return counts[0] if len(counts) == 1 else counts
 
 
+def train_sizes(text: str) -> tuple[int, ...]:
+    """``"64,128"`` -> (64, 128); each a multiple of 32 (the generator's stride)."""
+    try:
+        sizes = tuple(sorted({int(v) for v in str(text).replace(" ", "").split(",") if v}))
+    except ValueError:
+        raise ValueError(
+            f"sizes must be comma-separated integers like 64,128, got {text!r}"
+        ) from None
+    if any(v < 32 or v % 32 for v in sizes):
+        raise ValueError(f"training sizes must be multiples of 32, got {text!r}")
+    return sizes
+
+
+def resize_batch(batch: dict[str, Tensor], size: int) -> dict[str, Tensor]:
+    """Downsample a square batch's images, depths and intrinsics to ``size`` px.
+
+    Images: antialiased bilinear (what a lower-resolution camera integrates). Depths: the
+    bilinear value at the new pixel centre where the 2x2 (or larger) footprint agrees within
+    5 %, else 0 (no supervision across depth edges, where a blend is no surface at all).
+    """
+    import torch.nn.functional as F
+
+    from prosplat.generator.cost_volume import scale_intrinsics
+
+    h, w = batch["input_images"].shape[-2:]
+    if (h, w) == (size, size):
+        return batch
+    if size > min(h, w):
+        raise ValueError(f"cannot train at {size} px on {w}x{h} data: render larger scenes")
+    out = dict(batch)
+    for key in ("input_images", "target_images"):
+        x = batch[key]  # [B,M,3,H,W]
+        y = F.interpolate(
+            x.flatten(0, 1), size=(size, size), mode="bilinear", antialias=True, align_corners=False
+        )
+        out[key] = y.clamp(0, 1).view(*x.shape[:2], 3, size, size)
+    for key in ("input_depths", "target_depths"):
+        if key not in batch:
+            continue
+        d = batch[key].flatten(0, 1)[:, None]  # [BM,1,H,W]
+        k = h // size
+        hi = F.max_pool2d(d, k)
+        lo = -F.max_pool2d(-torch.where(d > 0, d, torch.full_like(d, float("inf"))), k)
+        mid = F.interpolate(d, size=(size, size), mode="bilinear", align_corners=False)
+        ok = (lo > 0) & torch.isfinite(lo) & (hi <= lo * 1.05)
+        out[key] = torch.where(ok, mid, torch.zeros_like(mid))[:, 0].view(
+            *batch[key].shape[:2], size, size
+        )
+    for key in ("input_K", "target_K"):
+        out[key] = scale_intrinsics(batch[key], size / w, size / h)
+    return out
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything a run depends on; saved beside its checkpoints as ``train_config.json``."""
@@ -131,6 +184,14 @@ class TrainConfig:
     # L1 on inverse depth of the generator's per-input-view depth maps vs Blender's: direct
     # supervision of the depth head (DepthSplat gets it from a pretrained depth model)
     input_depth_weight: float = 0.0
+    # the input cameras re-rendered from ALL views' Gaussians, scored like targets (colour, and
+    # depth with depth_weight): makes the views' Gaussians agree where they see one surface
+    input_render_weight: float = 0.0
+    # image sizes drawn per step (e.g. "64,128"; empty = the data's size): one set of weights
+    # for every size; data is downsampled, never upsampled
+    sizes: str = ""
+    any_view: bool = False  # draw inputs/targets from all of a scene's views (SceneDataset)
+    cache_scenes: int = 32  # decoded scenes kept in memory (raise it where memory allows)
     init: str | None = None  # start from these weights (a fresh optimiser, step 0)
     grad_clip: float = 0.5
     warmup: int = 500
@@ -143,6 +204,12 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         input_counts(self.inputs)  # fail at construction, not at the first step
+        train_sizes(self.sizes)
+
+    @property
+    def size_choices(self) -> tuple[int, ...]:
+        """The image sizes steps draw from (empty: the data's own size)."""
+        return train_sizes(self.sizes)
 
     @property
     def view_counts(self) -> tuple[int, ...]:
@@ -155,12 +222,28 @@ def batch_cameras(K: Tensor, w2c: Tensor, width: int, height: int) -> list[Camer
     return [Camera(K[v].double(), w2c[v].double(), width, height) for v in range(K.shape[0])]
 
 
+def _render(gaussians, cam: Camera, bg: Tensor):
+    """Render for the loss. On CUDA without gsplat the Gaussians go to the CPU rasterizer and
+    the outputs come back (autograd follows both copies), so a GPU still trains the network."""
+    from prosplat.render import _gsplat_available
+
+    device = gaussians.device
+    if device.type == "cuda" and not _gsplat_available(device):
+        out = render(gaussians.to("cpu"), cam, background=bg.cpu())
+        out.rgb, out.alpha, out.depth = (t.to(device) for t in (out.rgb, out.alpha, out.depth))
+        return out
+    return render(gaussians, cam, background=bg)
+
+
 def render_loss(
     output, batch: dict[str, Tensor], cfg: TrainConfig, lpips_fn=None
 ) -> tuple[Tensor, dict[str, float]]:
     """Render every target view of every scene in the batch and compare with ground truth.
 
-    Returns the loss (a mean over the batch's target views, so DDP's gradient average over
+    With ``input_render_weight`` the input cameras are rendered too (from all views'
+    Gaussians) and scored the same way, weighted by it.
+
+    Returns the loss (a mean over the batch's views, so DDP's gradient average over
     ranks equals one process's mean over the union) and its parts (floats, for the log).
     """
     from prosplat.metrics import ssim
@@ -168,27 +251,42 @@ def render_loss(
     targets = batch["target_images"]  # [B,M,3,H,W]
     b_size, m, _, h, w = targets.shape
     bg = torch.zeros(3, device=targets.device)
-    mse_sum = lp_sum = ss_sum = dp_sum = targets.new_zeros(())
+    groups = [("target", 1.0)]
+    if cfg.input_render_weight > 0:
+        groups.append(("input", cfg.input_render_weight))
+    zero = targets.new_zeros(())
+    sums = {k: zero for k in ("mse", "lpips", "ssim", "depth", "input_mse")}
     for b in range(b_size):
         gaussians = output.gaussians(b)
-        cams = batch_cameras(batch["target_K"][b], batch["target_w2c"][b], w, h)
-        for j, cam in enumerate(cams):
-            out = render(gaussians, cam, background=bg)
-            gt = targets[b, j]
-            mse_sum = mse_sum + torch.mean((out.rgb - gt) ** 2)
-            if lpips_fn is not None and cfg.lpips_weight > 0:
-                lp_sum = lp_sum + lpips_fn(out.rgb[None], gt[None]).mean()
-            if cfg.ssim_weight > 0:
-                ss_sum = ss_sum + (1 - ssim(out.rgb, gt))
-            if cfg.depth_weight > 0 and "target_depths" in batch:
-                gt_d = batch["target_depths"][b, j]
-                valid = (gt_d > 0) & (out.alpha > 0.5)
-                if valid.any():
-                    inv = 1 / out.depth[valid].clamp_min(1e-3)
-                    dp_sum = dp_sum + (inv - 1 / gt_d[valid]).abs().mean()
+        for group, weight in groups:
+            images, depths = batch[f"{group}_images"][b], batch.get(f"{group}_depths")
+            cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
+            for j, cam in enumerate(cams):
+                out = _render(gaussians, cam, bg)
+                gt = images[j]
+                mse = torch.mean((out.rgb - gt) ** 2)
+                if group == "input":
+                    sums["input_mse"] = sums["input_mse"] + mse.detach()
+                sums["mse"] = sums["mse"] + weight * mse
+                if lpips_fn is not None and cfg.lpips_weight > 0:
+                    sums["lpips"] = (
+                        sums["lpips"] + weight * lpips_fn(out.rgb[None], gt[None]).mean()
+                    )
+                if cfg.ssim_weight > 0:
+                    sums["ssim"] = sums["ssim"] + weight * (1 - ssim(out.rgb, gt))
+                if cfg.depth_weight > 0 and depths is not None:
+                    gt_d = depths[b, j]
+                    valid = (gt_d > 0) & (out.alpha > 0.5)
+                    if valid.any():
+                        inv = 1 / out.depth[valid].clamp_min(1e-3)
+                        sums["depth"] = (
+                            sums["depth"] + weight * (inv - 1 / gt_d[valid]).abs().mean()
+                        )
     n = b_size * m
-    parts = {"mse": mse_sum / n, "lpips": lp_sum / n, "ssim": ss_sum / n, "depth": dp_sum / n}
-    parts["input_depth"] = targets.new_zeros(())
+    parts = {k: v / n for k, v in sums.items()}
+    if cfg.input_render_weight > 0:
+        parts["input_mse"] = sums["input_mse"] / (b_size * batch["input_images"].shape[1])
+    parts["input_depth"] = zero
     if cfg.input_depth_weight > 0 and "input_depths" in batch:
         gt_d = batch["input_depths"]  # [B,V,H,W], 0 = no surface
         valid = gt_d > 0
@@ -250,7 +348,7 @@ def validate(model, cfg: TrainConfig, device: torch.device, ds=None) -> dict[str
             h, w = item["target_images"].shape[-2:]
             cams = batch_cameras(item["target_K"][0], item["target_w2c"][0], w, h)
             for j, cam in enumerate(cams):
-                pred = render(g, cam).rgb.clamp(0, 1)
+                pred = _render(g, cam, torch.zeros(3, device=device)).rgb.clamp(0, 1)
                 gt = item["target_images"][0, j]
                 scores["psnr"].append(float(psnr(pred, gt)))
                 scores["ssim"].append(float(ssim(pred, gt)))
@@ -363,7 +461,14 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         lpips_fn = LPIPS().to(device)
 
     counts = cfg.view_counts
-    ds = SceneDataset(cfg.data, n_inputs=counts[0], n_targets=cfg.targets, seed=cfg.seed)
+    ds = SceneDataset(
+        cfg.data.split(","),
+        n_inputs=counts[0],
+        n_targets=cfg.targets,
+        seed=cfg.seed,
+        any_view=cfg.any_view,
+        cache_size=cfg.cache_scenes,
+    )
     steps_per_epoch(len(ds), cfg.batch, dist.world_size)  # a clear error if a step cannot fill
     val_ds = None
     if cfg.val and dist.is_main:
@@ -381,6 +486,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         for batch in loader:
             n_views = int(batch["input_images"].shape[1])
             batch = _to(batch, device)
+            if cfg.size_choices:  # a size per step, seeded apart from the view count's draw
+                batch = resize_batch(batch, draw_count(cfg.size_choices, cfg.seed + 7919, step))
             for group in opt.param_groups:
                 group["lr"] = lr_at(step, cfg)
             output = ddp_model(*_model_inputs(batch))

@@ -1,0 +1,135 @@
+"""Scene packs (prosplat.data.packed) and the v2 training data path: packs read like folders,
+any-view draws, and the per-step downsampling of a batch."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from synthetic_scenes import write_synthetic_scene
+
+from prosplat.cli import main
+from prosplat.data import SceneDataset
+from prosplat.data.dataset import ItemKey
+from prosplat.data.packed import Pack, pack_scenes
+from prosplat.data.scene import load_scene
+from prosplat.metrics import psnr
+from prosplat.train.generator import resize_batch, train_sizes
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scenes")
+    for k in range(3):
+        write_synthetic_scene(root / f"scene_{k}", size=32, n_views=8)
+    return root
+
+
+@pytest.fixture(scope="module")
+def pack(scenes, tmp_path_factory):
+    folders = sorted(scenes.iterdir())
+    return pack_scenes(folders, tmp_path_factory.mktemp("packs") / "train_000.npz")
+
+
+def test_a_pack_holds_the_scenes_it_was_made_from(scenes, pack):
+    p = Pack(pack)
+    assert p.names() == ["scene_0", "scene_1", "scene_2"]
+    for i, folder in enumerate(sorted(scenes.iterdir())):
+        a, b = load_scene(folder), p.scene(i)
+        assert b.splits == a.splits and b.target_kinds == a.target_kinds
+        assert float(psnr(b.images, a.images).min()) > 35  # JPEG q95
+        rel = (b.depths - a.depths).abs() / a.depths.clamp_min(1e-6)
+        assert float(rel[a.depths > 0].max()) < 1e-3  # float16
+        for ca, cb in zip(a.cameras, b.cameras):
+            assert torch.allclose(ca.K.double(), cb.K.double())
+            assert torch.allclose(ca.world_to_cam.double(), cb.world_to_cam.double())
+        assert torch.equal(a.near, b.near) and torch.equal(a.far, b.far)
+
+
+def test_a_pack_is_never_replaced_and_must_be_npz(scenes, pack):
+    with pytest.raises(FileExistsError, match="exists"):
+        pack_scenes([scenes / "scene_0"], pack)
+    with pytest.raises(ValueError, match=".npz"):
+        pack_scenes([scenes / "scene_0"], pack.with_suffix(".zip"))
+    with pytest.raises(FileNotFoundError, match="no pack"):
+        Pack(pack.with_name("missing.npz"))
+
+
+def test_the_dataset_reads_packs_and_folders_alike(scenes, pack):
+    folders = SceneDataset(scenes, n_inputs=2, n_targets=2, seed=3)
+    packed = SceneDataset(pack, n_inputs=2, n_targets=2, seed=3)
+    assert len(folders) == len(packed) == 3
+    a, b = folders[ItemKey(1, 0, 3)], packed[ItemKey(1, 0, 3)]
+    assert torch.equal(a["input_w2c"], b["input_w2c"])  # the same draw of views
+    assert float(psnr(b["target_images"], a["target_images"]).min()) > 35
+
+
+def test_any_view_draws_inputs_from_every_view(pack):
+    ds = SceneDataset(pack, n_inputs=3, n_targets=2, seed=0, any_view=True)
+    split = SceneDataset(pack, n_inputs=3, n_targets=2, seed=0)
+    sc = ds.scene(0)
+    target_poses = {
+        tuple(sc.cameras[i].world_to_cam.float().double().flatten().tolist())
+        for i in sc.target_indices
+    }
+    drawn_from_targets = 0
+    for epoch in range(20):
+        item = ds[ItemKey(0, epoch, 3)]
+        ins = {tuple(m.double().flatten().tolist()) for m in item["input_w2c"]}
+        tgs = {tuple(m.double().flatten().tolist()) for m in item["target_w2c"]}
+        assert not ins & tgs  # a view is never both
+        drawn_from_targets += bool(ins & target_poses)
+        # without any_view inputs only ever come from the input split
+        fixed = {
+            tuple(m.double().flatten().tolist()) for m in split[ItemKey(0, epoch, 3)]["input_w2c"]
+        }
+        assert not fixed & target_poses
+    assert drawn_from_targets > 0
+
+
+def test_resize_batch_keeps_geometry_and_drops_depth_edges():
+    b, v, h = 1, 2, 64
+    images = torch.rand(b, v, 3, h, h)
+    depth = torch.full((b, v, h, h), 2.0)
+    depth[..., :, 33:] = 4.0  # an edge inside the 2x2 block of columns 32-33
+    K = torch.tensor([[50.0, 0, 32], [0, 50, 32], [0, 0, 1]]).expand(b, v, 3, 3)
+    batch = {
+        "input_images": images,
+        "target_images": images,
+        "input_depths": depth,
+        "target_depths": depth,
+        "input_K": K,
+        "target_K": K,
+    }
+    out = resize_batch(batch, 32)
+    assert out["input_images"].shape == (b, v, 3, 32, 32)
+    assert torch.allclose(out["input_K"][0, 0, 0], torch.tensor([25.0, 0, 16]))
+    d = out["input_depths"][0, 0]
+    assert torch.allclose(d[:, :16], torch.full_like(d[:, :16], 2.0))
+    assert (d[:, 16] == 0).all()  # the block that straddles the edge is not supervised
+    assert torch.allclose(d[:, 17:], torch.full_like(d[:, 17:], 4.0))
+    # a constant image stays constant (antialiasing does not darken borders)
+    flat = resize_batch({**batch, "input_images": torch.full_like(images, 0.25)}, 32)
+    assert torch.allclose(flat["input_images"], torch.tensor(0.25), atol=1e-6)
+    with pytest.raises(ValueError, match="render larger"):
+        resize_batch(batch, 128)
+
+
+def test_train_sizes_parse_and_refuse_bad_values():
+    assert train_sizes("128,64") == (64, 128)
+    assert train_sizes("") == ()
+    for bad in ("48", "64,abc", "0"):
+        with pytest.raises(ValueError):
+            train_sizes(bad)
+
+
+def test_the_pack_command_splits_and_never_overwrites(scenes, tmp_path, capsys):
+    out = tmp_path / "p" / "train"
+    args = ["scenes", "pack", "--data", str(scenes), "--out", str(out), "--max-mb", "0.02"]
+    with pytest.raises(SystemExit) as done:
+        main(args)
+    assert done.value.code == 0
+    packs = sorted(out.parent.glob("train_*.npz"))
+    assert len(packs) >= 2  # a tiny bound forces several packs
+    assert sum(len(Pack(p)) for p in packs) == 3
+    with pytest.raises(FileExistsError):
+        main(args)
