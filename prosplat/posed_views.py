@@ -317,25 +317,28 @@ def near_far_from_points(
 
     For each camera, its points are those it observes (``observed[i]``, indices into
     ``points``) or, without tracks, every point in front of it that projects into its image.
-    The depths of all of them together give ``near = NEAR_MARGIN · q02`` and
-    ``far = FAR_MARGIN · q98`` (2nd and 98th percentiles: SfM outliers do not stretch the
-    range).
+    Fewer than :data:`MIN_POINTS` distinct points give None. The depths of all of them
+    together give ``near = NEAR_MARGIN · q02`` and ``far = FAR_MARGIN · q98`` (2nd and 98th
+    percentiles: SfM outliers do not stretch the range).
     """
     depths = []
     pts = points.double()
+    used = torch.zeros(len(pts), dtype=torch.bool)
     for i, cam in enumerate(cameras):
         c = cam.to(dtype=torch.float64)
         if observed is not None and len(observed[i]) > 0:
-            p = pts[observed[i]]
-            z = c.world_to_camera(p)[:, 2]
+            idx = observed[i].long()
         else:
             uv, z = c.project(pts)
             inside = (uv[:, 0] >= 0) & (uv[:, 0] <= c.width) & (uv[:, 1] >= 0)
-            z = z[inside & (uv[:, 1] <= c.height)]
-        depths.append(z[torch.isfinite(z) & (z > 0)])
-    z = torch.cat(depths) if depths else torch.zeros(0, dtype=torch.float64)
-    if len(z) < MIN_POINTS:
+            idx = (inside & (uv[:, 1] <= c.height)).nonzero()[:, 0]
+        z = c.world_to_camera(pts[idx])[:, 2]
+        ok = torch.isfinite(z) & (z > 0)
+        used[idx[ok]] = True
+        depths.append(z[ok])
+    if int(used.sum()) < MIN_POINTS:
         return None
+    z = torch.cat(depths)
     lo, hi = torch.quantile(z, torch.tensor(POINT_PERCENTILES, dtype=torch.float64)).tolist()
     near, far = NEAR_MARGIN * lo, FAR_MARGIN * hi
     return (near, far) if 0 < near < far else None

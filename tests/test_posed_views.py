@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from posed_data import scene_cameras, scene_points, write_colmap_project, write_transforms_set
+
 from prosplat import Camera, ProSplat
 from prosplat.convert.distortion import Distortion
 from prosplat.demo_scene import raycast
@@ -172,7 +172,6 @@ def test_undistorted_inputs_match_pinhole_renders(tmp_path: Path) -> None:
     cameras (up to resampling; compared at 1/4 resolution, where the scene's hard checker
     edges no longer dominate), with global or per-frame intrinsics."""
     import torch.nn.functional as F
-
     from posed_data import scene_image
 
     def err(a: torch.Tensor, b: torch.Tensor) -> float:
