@@ -267,8 +267,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="(default out/demo)")
     demo.add_argument("--scene", default="tabletop", help="scene family or hard scene name")
     demo.add_argument("--seed", type=int, default=950002, help="scene seed (default: a test one)")
+    from prosplat.pipeline import TRAINED_SIZE
+
     demo.add_argument(
-        "--size", type=int, default=64, help="model resolution, multiple of 32 (default 64)"
+        "--size",
+        type=int,
+        default=TRAINED_SIZE,
+        help=f"model resolution, multiple of 32 (default {TRAINED_SIZE}: the shipped weights')",
     )
     demo.add_argument(
         "--render-scale", type=int, default=2, help="Blender renders at size x this (default 2)"

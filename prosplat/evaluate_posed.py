@@ -160,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         out = out_folder(args.out, args.overwrite)
-        posed, inputs, background, bg_text, size = prepare(args)
+        posed, inputs, background, bg_text, size = prepare(args, keep_targets=1)
         targets = render_selection(posed.names, inputs, ["held-out"], args.targets)
         if not targets:
             raise ValueError(

@@ -41,6 +41,10 @@ __all__ = [
 ]
 
 
+#: input views picked when --num-inputs is not given (if the set has that many frames)
+DEFAULT_INPUTS = 4
+
+
 def add_common_arguments(p: argparse.ArgumentParser) -> None:
     """Options shared by ``prosplat reconstruct`` and ``prosplat eval posed``."""
     from prosplat.pipeline import TRAINED_SIZE
@@ -56,7 +60,12 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         help="input views by name (file stem) or index; default: --num-inputs picked by "
         "farthest-point sampling of the camera centres",
     )
-    p.add_argument("--num-inputs", type=int, default=4, help="input views to pick, 2-6 (default 4)")
+    p.add_argument(
+        "--num-inputs",
+        type=int,
+        default=None,
+        help=f"input views to pick, 2-6 (default {DEFAULT_INPUTS}, fewer on smaller sets)",
+    )
     p.add_argument(
         "--size",
         type=int,
@@ -210,12 +219,17 @@ def near_far(posed, inputs: list[int], cameras, near, far) -> tuple[float, float
     return float(n), float(f), " + ".join(src)
 
 
-def prepare(args: argparse.Namespace):
-    """Shared first half of reconstruct and eval posed: posed set, inputs, background, size."""
+def prepare(args: argparse.Namespace, keep_targets: int = 0):
+    """Shared first half of reconstruct and eval posed: posed set, inputs, background, size.
+    Without --num-inputs, :data:`DEFAULT_INPUTS` views are picked, or fewer on a set that
+    has fewer frames (leaving ``keep_targets`` frames as targets, but at least 2 inputs)."""
     from prosplat.posed_views import load_posed_set, model_size, pick_views, resolve_background
 
     posed = load_posed_set(args.input, args.images)
-    inputs = pick_views(posed, args.inputs, args.num_inputs)
+    count = args.num_inputs
+    if count is None:
+        count = max(2, min(DEFAULT_INPUTS, len(posed.views) - keep_targets))
+    inputs = pick_views(posed, args.inputs, count)
     background, bg_text = resolve_background(posed, args.background)
     first = posed.views[inputs[0]].camera
     size = model_size(first.width, first.height, args.size)
