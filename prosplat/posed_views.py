@@ -72,6 +72,17 @@ class PosedSet:
     points: Tensor = field(default_factory=lambda: torch.zeros(0, 3, dtype=torch.float64))
     observed: dict[str, Tensor] = field(default_factory=dict)
     nerf_synthetic: bool = False
+    #: depth bounds the file gives: view name -> (near, far) from per-frame ``near``/``far``,
+    #: or the top-level pair under the key None (ProSplat's own scene folders write both)
+    bounds: dict[str | None, tuple[float, float]] = field(default_factory=dict)
+
+    def file_near_far(self, indices: Sequence[int]) -> tuple[float, float] | None:
+        """The file's depth range for these views (per-frame bounds, else the top-level
+        pair), or None when it gives none."""
+        per = [self.bounds.get(self.views[i].name) for i in indices]
+        if all(b is not None for b in per) and per:
+            return min(b[0] for b in per), max(b[1] for b in per)
+        return self.bounds.get(None)
 
     @property
     def names(self) -> list[str]:
@@ -95,6 +106,13 @@ def _unique_names(names: list[str]) -> list[str]:
     if len(set(stems)) == len(stems):
         return stems
     return [n.replace("/", "_").replace("\\", "_") for n in names]
+
+
+def _bounds(d: dict) -> tuple[float, float] | None:
+    """(near, far) when ``d`` holds a valid pair of numbers, else None."""
+    near, far = d.get("near"), d.get("far")
+    ok = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (near, far))
+    return (float(near), float(far)) if ok and 0 < near < far < float("inf") else None
 
 
 def load_posed_set(path: str | Path, images_dir: str | Path | None = None) -> PosedSet:
@@ -158,7 +176,11 @@ def load_posed_set(path: str | Path, images_dir: str | Path | None = None) -> Po
             views.append(PosedView(name, found, f.camera, f.distortion))
         top = json.loads(json_path.read_text())
         synthetic = "camera_angle_x" in top and "fl_x" not in top
-        posed = PosedSet(views, json_path, "transforms", nerf_synthetic=synthetic)
+        bounds = {None: _bounds(tf.meta)} if _bounds(tf.meta) else {}
+        for f, name in zip(tf.frames, names, strict=True):
+            if _bounds(f.extra):
+                bounds[name] = _bounds(f.extra)
+        posed = PosedSet(views, json_path, "transforms", nerf_synthetic=synthetic, bounds=bounds)
     if not posed.views:
         raise ValueError(f"{path} has no frames (no registered images); nothing to reconstruct")
     return posed

@@ -8,8 +8,9 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
 2. reads them: RGBA composited over ``--background`` (white by default for NeRF-synthetic
    data), undistorted onto pinhole cameras, resized to ``--size`` (default: the resolution
    the shipped weights were trained at) with the intrinsics scaled to match;
-3. takes near/far from the COLMAP points the inputs see when there are any, otherwise from
-   the cameras (:func:`prosplat.pipeline.near_far_from_cameras`), unless ``--near/--far``;
+3. takes near/far from ``--near/--far``, else from the transforms file's ``near``/``far``
+   (per frame or top level), else from the COLMAP points the inputs see, else from the
+   cameras (:func:`prosplat.pipeline.near_far_from_cameras`);
 4. reconstructs (optionally refining, ``--refine-steps/--refine-seconds``), prunes to the
    Gaussian budget and writes ``gaussians.ply``;
 5. renders ``--render`` cameras (``held-out``, ``all``, ``none`` or names) raw and enhanced;
@@ -201,7 +202,10 @@ def near_far(posed, inputs: list[int], cameras, near, far) -> tuple[float, float
     src = []
     est = None
     if near is None or far is None:
-        if len(posed.points):
+        est = posed.file_near_far(inputs)
+        if est is not None:
+            src.append(f"the near/far in {posed.source.name}")
+        if est is None and len(posed.points):
             obs = [posed.observed.get(posed.views[i].name, torch.zeros(0, dtype=torch.long))
                    for i in inputs]  # fmt: skip
             est = near_far_from_points(posed.points, cameras, obs)

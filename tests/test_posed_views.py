@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import random
 from pathlib import Path
@@ -189,3 +190,17 @@ def test_undistorted_inputs_match_pinhole_renders(tmp_path: Path) -> None:
             file = read_image(posed.views[i].image)  # skipping undistortion, either camera
             assert good < 0.012, good
             assert good < 0.4 * min(err(file, scene_image(cam)), err(file, scene_image(cams[i])))
+
+
+def test_file_near_far_per_frame_then_top_level(tmp_path: Path) -> None:
+    path = write_transforms_set(tmp_path / "s", scene_cameras(3, 32, 32))
+    posed = load_posed_set(path)
+    assert posed.file_near_far([0, 1]) is None  # the file gives none: estimate instead
+    data = json.loads(path.read_text())
+    data.update(near=0.5, far=20.0)
+    data["frames"][0].update(near=1.0, far=6.0)
+    data["frames"][1].update(near=1.5, far=8.0)
+    path.write_text(json.dumps(data))
+    posed = load_posed_set(path)
+    assert posed.file_near_far([0, 1]) == (1.0, 8.0)  # per-frame bounds of the inputs
+    assert posed.file_near_far([0, 2]) == (0.5, 20.0)  # frame 2 has none: the top level
