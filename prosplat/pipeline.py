@@ -268,7 +268,8 @@ class ProSplat:
     ) -> GeneratorOutput:
         """Run the generator (eval mode) on one scene: ``images [N,3,H,W]`` in [0,1] with one
         :class:`Camera` each. near/far default to :func:`near_far_from_cameras`. No autograd
-        graph unless ``grad``."""
+        graph unless ``grad``. Images that are not float or not in [0, 1] (``uint8``, 0-255)
+        raise ``ValueError`` naming the fix (:func:`prosplat.image_io.check_images`)."""
         imgs, K, w2c, near, far = self._inputs(images, cameras, near, far)
         was_training = self.generator.training
         self.generator.eval()

@@ -13,7 +13,8 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
    cameras (:func:`prosplat.pipeline.near_far_from_cameras`);
 4. reconstructs (optionally refining, ``--refine-steps/--refine-seconds``), prunes to the
    Gaussian budget and writes ``gaussians.ply``;
-5. renders ``--render`` cameras (``held-out``, ``all``, ``none`` or names) raw and enhanced;
+5. renders ``--render`` cameras (``held-out``, ``all``, ``none``, names, or a camera path:
+   a ``transforms.json`` of pinhole cameras) raw and enhanced;
 6. writes ``report.md`` and ``transforms.json`` (the undistorted, resized inputs, in
    ``inputs/``), so the result opens in Blender with its cameras.
 
@@ -104,8 +105,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         nargs="+",
         default=["held-out"],
         metavar="WHICH",
-        help="cameras to render raw + enhanced: held-out (default), all, none, or names / "
-        "indices of frames",
+        help="cameras to render raw + enhanced: held-out (default), all, none, names / "
+        "indices of frames, or a camera path (a transforms.json of pinhole cameras)",
     )
     p.add_argument(
         "--max-renders",
@@ -117,12 +118,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def out_folder(out: Path, overwrite: bool) -> Path:
     """``out`` when it is new, empty, or ``overwrite``; otherwise a ValueError: nothing the
-    user owns is written over (``prosplat.cli._fresh_folder`` decides what "fresh" is)."""
-    from prosplat.cli import _fresh_folder
-
+    user owns is written over. (Not ``prosplat.cli._fresh_folder``, which picks ``out-N``
+    instead and would make this module import the CLI that imports it.)"""
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder")
-    if _fresh_folder(out, overwrite) != out:
+    if out.exists() and any(out.iterdir()) and not overwrite:
         raise ValueError(
             f"--out {out} is not empty; pick a new folder or pass --overwrite to replace this "
             "command's files there"
@@ -152,12 +152,36 @@ def refine_kwargs(model, steps: int | None, seconds: float | None) -> dict:
     return kwargs
 
 
+def path_cameras(which: list[str], size: tuple[int, int]) -> list[tuple[str, object]]:
+    """(name, camera) of a camera path given as ``--render PATH.json`` (a transforms file with
+    pinhole cameras, e.g. written by the add-on or nerfstudio), at the model resolution:
+    ``size`` (W, H) when the aspect matches, else the same height."""
+    from prosplat.convert.nerfstudio import read_transforms
+    from prosplat.posed_views import model_size
+
+    if not (len(which) == 1 and which[0].lower().endswith(".json")):
+        return []
+    tf = read_transforms(which[0], image_size=size)
+    out = []
+    for k, f in enumerate(tf.frames):
+        c = f.camera
+        wh = (
+            size
+            if c.width * size[1] == c.height * size[0]
+            else model_size(c.width, c.height, size[1])
+        )
+        out.append((f"path_{k:03d}_{Path(f.file_path).stem}", c.resized(*wh)))
+    return out
+
+
 def render_selection(
     names: list[str], inputs: list[int], which: list[str], max_held_out: int
 ) -> list[int]:
     """Frame indices ``--render`` asks for (``held-out`` evenly thinned to ``max_held_out``)."""
     if which == ["none"]:
         return []
+    if len(which) == 1 and which[0].lower().endswith(".json"):
+        return []  # a camera path: see path_cameras
     if which == ["all"]:
         return list(range(len(names)))
     if which == ["held-out"]:
@@ -277,6 +301,7 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     out = out_folder(args.out, args.overwrite)
     posed, inputs, background, bg_text, size = prepare(args)
     which = render_selection(posed.names, inputs, args.render, args.max_renders)
+    path = path_cameras(args.render, size)
     model = load_model(args)
     refine_kwargs(model, args.refine_steps, args.refine_seconds)  # fail before any work
     images, cameras = load_views(posed, inputs, size, background, progress=True)
@@ -298,21 +323,19 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
 
     rendered, rows = [], []
     t0 = time.perf_counter()
-    if which:
+    todo = [(posed.views[i].name, view_camera(posed.views[i], size),
+             "input" if i in inputs else "held-out") for i in which]  # fmt: skip
+    todo += [(name, cam, "camera path") for name, cam in path]
+    if todo:
         (out / "renders").mkdir(exist_ok=True)
-    for i in tqdm(which, desc="rendering + enhancing", unit="view", disable=not which):
-        view = posed.views[i]
-        cam = view_camera(view, size)
+    for name, cam, kind in tqdm(todo, desc="rendering + enhancing", unit="view", disable=not todo):
         enhance = model.improver is not None
         r = model.render(g, cam, images, cameras, enhance=enhance, background=background)
-        write_image(out / "renders" / f"{view.name}_raw.png", r.raw, overwrite=args.overwrite)
+        write_image(out / "renders" / f"{name}_raw.png", r.raw, overwrite=args.overwrite)
         if enhance:
-            write_image(
-                out / "renders" / f"{view.name}_enhanced.png", r.image, overwrite=args.overwrite
-            )
-        rendered.append(view.name)
-        ref = names[r.reference] if r.reference is not None else "-"
-        rows.append((view.name, "input" if i in inputs else "held-out", ref))
+            write_image(out / "renders" / f"{name}_enhanced.png", r.image, overwrite=args.overwrite)
+        rendered.append(name)
+        rows.append((name, kind, names[r.reference] if r.reference is not None else "-"))
     t_views = time.perf_counter() - t0
     result = ReconstructResult(
         out=out,

@@ -138,3 +138,14 @@ def test_colmap_distorted_models_give_their_lens(tmp_path) -> None:
     (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 1 im1.png\n\n")
     with pytest.raises(ValueError, match="k4-k6"):  # OpenCV's rational terms are not modelled
         read_colmap_model(tmp_path)
+
+
+def test_truncated_binary_model_is_a_clear_error(tmp_path) -> None:
+    import struct
+
+    (tmp_path / "cameras.bin").write_bytes(struct.pack("<QiiQQ", 1, 1, 1, 64, 48) + b"\0" * 8)
+    (tmp_path / "images.bin").write_bytes(struct.pack("<Q", 0))
+    with pytest.raises(ValueError, match=r"cameras.bin ends early.*truncated"):
+        read_colmap_model(tmp_path)
+    with pytest.raises(FileNotFoundError, match="no COLMAP model"):
+        read_colmap_model(tmp_path / "nowhere")

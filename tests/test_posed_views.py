@@ -179,9 +179,13 @@ def test_undistorted_inputs_match_pinhole_renders(tmp_path: Path) -> None:
         return float((F.avg_pool2d(a[None], 4) - F.avg_pool2d(b[None], 4)).abs().mean())
 
     cams = scene_cameras(3, 192, 144)
-    for k1, per_frame in ((-0.25, False), (0.1, True)):
-        d = Distortion("opencv", k1=k1, k2=0.06, p1=0.002, p2=-0.001)
-        path = write_transforms_set(tmp_path / f"ngp{k1}", cams, d, per_frame=per_frame)
+    lenses = [
+        (Distortion("opencv", k1=-0.25, k2=0.06, p1=0.002, p2=-0.001), False),
+        (Distortion("opencv", k1=0.1, k2=0.06, p1=0.002, p2=-0.001), True),
+        (Distortion("fisheye", k1=0.08, k2=-0.01, k3=0.002), False),  # camera_model key
+    ]
+    for k, (d, per_frame) in enumerate(lenses):
+        path = write_transforms_set(tmp_path / f"ngp{k}", cams, d, per_frame=per_frame)
         posed = load_posed_set(path)
         assert posed.views[0].distortion == d
         images, new_cams = load_views(posed, [0, 2], None, torch.zeros(3))
@@ -204,3 +208,16 @@ def test_file_near_far_per_frame_then_top_level(tmp_path: Path) -> None:
     posed = load_posed_set(path)
     assert posed.file_near_far([0, 1]) == (1.0, 8.0)  # per-frame bounds of the inputs
     assert posed.file_near_far([0, 2]) == (0.5, 20.0)  # frame 2 has none: the top level
+
+
+def test_instant_ngp_fisheye_flag(tmp_path: Path) -> None:
+    from prosplat.convert.nerfstudio import read_transforms
+
+    path = write_transforms_set(tmp_path / "s", scene_cameras(2, 32, 32))
+    data = json.loads(path.read_text())
+    data.update(is_fisheye=True, k1=0.1, k2=0.01)
+    path.write_text(json.dumps(data))
+    frames = read_transforms(path, allow_distortion=True).frames
+    assert frames[0].distortion == Distortion("fisheye", k1=0.1, k2=0.01)
+    with pytest.raises(ValueError, match="fisheye"):
+        read_transforms(path)  # the pinhole-only reader still refuses it

@@ -191,3 +191,34 @@ def test_score_cases_flat_and_paste_rows():
     flat = images.mean(dim=(0, 2, 3))[:, None, None].expand(3, 32, 32)
     assert by["flat"].psnr == pytest.approx(float(psnr(flat, images[0])), abs=1e-4)
     assert by["generator"].psnr < 100 and by["generator"].gaussians > 0
+
+
+def test_render_a_camera_path(colmap_text, tmp_path):
+    """--render PATH.json renders the cameras of another transforms file (e.g. exported from
+    Blender), at the model resolution."""
+    from prosplat.convert.nerfstudio import Frame, write_transforms
+
+    cams = scene_cameras(3, 128, 96)  # another size than the photos, same aspect
+    path = write_transforms(
+        tmp_path / "path.json", [Frame(c, f"cam{i}") for i, c in enumerate(cams)]
+    )
+    out = tmp_path / "out"
+    assert cli("reconstruct", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
+               "--render", path) == 0  # fmt: skip
+    names = sorted(p.name for p in (out / "renders").iterdir())
+    assert names == sorted(
+        f"path_{i:03d}_cam{i}_{k}.png" for i in range(3) for k in ("raw", "enhanced")
+    )
+    assert read_image(out / "renders" / "path_000_cam0_raw.png").shape == (3, 32, 32)
+    assert "camera path" in (out / "report.md").read_text()
+
+
+def test_reconstruct_nerf_synthetic_rgba_says_white(tmp_path):
+    alpha = torch.ones(32, 32)
+    alpha[:, :8] = 0
+    path = write_transforms_set(tmp_path / "lego", scene_cameras(3, 32, 32), rgba_alpha=alpha,
+                                angle_x=True)  # fmt: skip
+    out = tmp_path / "out"
+    assert cli("reconstruct", path, "--out", out, "--size", "32", "--num-inputs", "2") == 0
+    assert "background for RGBA: white (NeRF-synthetic" in (out / "report.md").read_text()
+    assert read_image(out / "inputs" / "000.png")[:, :, :8].min() == 1.0  # composited on white
