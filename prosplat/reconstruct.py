@@ -33,9 +33,14 @@ from pathlib import Path
 import torch
 
 __all__ = [
+    "DEFAULT_INPUTS",
     "ReconstructResult",
     "add_arguments",
+    "add_common_arguments",
+    "near_far",
     "out_folder",
+    "path_cameras",
+    "prepare",
     "refine_kwargs",
     "render_selection",
     "run",
@@ -219,7 +224,8 @@ class ReconstructResult:
 
 
 def near_far(posed, inputs: list[int], cameras, near, far) -> tuple[float, float, str]:
-    """near/far and where they came from: the flags, COLMAP points, or the cameras."""
+    """near/far and where they came from: the flags, else the file's own near/far, else the
+    COLMAP points the inputs observe, else :func:`~prosplat.pipeline.near_far_from_cameras`."""
     from prosplat.pipeline import near_far_from_cameras
     from prosplat.posed_views import near_far_from_points
 
