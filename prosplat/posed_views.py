@@ -317,6 +317,15 @@ def load_views(
             # cameras); normalised distortion coefficients do not depend on the size
             cam = cam.resized(w, h)
         if view.distortion is not None and not view.distortion.is_identity:
+            # undistort at twice the model size (antialiased down first): as sharp after the
+            # final resize, and a 1080p photo takes ~10 ms instead of ~0.8 s. The undistorted
+            # camera scales with the image, so this commutes with view_camera.
+            s = 1.0 if size is None else max(2 * size[0] / w, 2 * size[1] / h)
+            if s < 1:
+                w2, h2 = max(1, round(w * s)), max(1, round(h * s))
+                img = F.interpolate(img[None], size=(h2, w2), mode="bilinear", antialias=True,
+                                    align_corners=False)[0]  # fmt: skip
+                cam = cam.resized(w2, h2)
             new = undistorted_camera(cam, view.distortion)
             img, cam = undistort_image(img, cam, view.distortion, new), new
         if size is None:

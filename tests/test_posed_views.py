@@ -221,3 +221,16 @@ def test_instant_ngp_fisheye_flag(tmp_path: Path) -> None:
     assert frames[0].distortion == Distortion("fisheye", k1=0.1, k2=0.01)
     with pytest.raises(ValueError, match="fisheye"):
         read_transforms(path)  # the pinhole-only reader still refuses it
+
+
+def test_load_views_cameras_match_view_camera(tmp_path: Path) -> None:
+    """Inputs (undistorted at twice the model size, then resized) and targets (view_camera)
+    get the same pinhole camera for the same frame."""
+    from prosplat.posed_views import view_camera
+
+    cams = scene_cameras(2, 192, 144)
+    d = Distortion("opencv", k1=-0.2, k2=0.05)
+    posed = load_posed_set(write_transforms_set(tmp_path / "s", cams, d))
+    _, loaded = load_views(posed, [0, 1], (32, 32), torch.zeros(3))
+    for i, cam in enumerate(loaded):
+        torch.testing.assert_close(cam.K, view_camera(posed.views[i], (32, 32)).K)
