@@ -1,9 +1,10 @@
 """``prosplat eval posed``: any posed set scored on its held-out frames.
 
 The input views (picked as ``prosplat reconstruct`` picks them) are reconstructed once; every
-other frame (``--targets`` of them, evenly spread) is a target, read and undistorted the same
-way, and four predictions are scored against it with PSNR / SSIM / LPIPS
-(:mod:`prosplat.metrics`):
+other frame (``--targets`` of them, evenly spread; or the frames of ``--target-set``, another
+file in the same world frame such as NeRF synthetic's ``transforms_test.json``) is a target,
+read, undistorted and resized the same way, and four predictions are scored against it with
+PSNR / SSIM / LPIPS (:mod:`prosplat.metrics`):
 
 * ``flat``: one colour everywhere, the mean colour of the input images;
 * ``paste``: the input MORI picks as the reference, resampled to the target's size, as is;
@@ -145,10 +146,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=8,
         help="held-out frames to score, evenly spread (default 8; 0 = all)",
     )
+    p.add_argument(
+        "--target-set",
+        type=Path,
+        default=None,
+        help="take the targets from this other posed file in the same world frame (e.g. "
+        "NeRF synthetic's transforms_test.json) instead of INPUT's held-out frames",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    from prosplat.posed_views import load_views
+    from prosplat.posed_views import load_posed_set, load_views
     from prosplat.reconstruct import (
         load_model,
         near_far,
@@ -160,16 +168,20 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         out = out_folder(args.out, args.overwrite)
-        posed, inputs, background, bg_text, size = prepare(args, keep_targets=1)
-        targets = render_selection(posed.names, inputs, ["held-out"], args.targets)
+        keep = 0 if args.target_set else 1
+        posed, inputs, background, bg_text, size = prepare(args, keep_targets=keep)
+        target_set = load_posed_set(args.target_set, None) if args.target_set else posed
+        held_out = [] if args.target_set else inputs
+        targets = render_selection(target_set.names, held_out, ["held-out"], args.targets)
         if not targets:
             raise ValueError(
-                f"{posed.source} has no frames besides the {len(inputs)} inputs; nothing to score"
+                f"{posed.source} has no frames besides the {len(inputs)} inputs; nothing to "
+                "score (or give --target-set)"
             )
         model = load_model(args)
         kwargs = refine_kwargs(model, args.refine_steps, args.refine_seconds)
         images, cameras = load_views(posed, inputs, size, background, progress=True)
-        t_images, t_cams = load_views(posed, targets, size, background, progress=True)
+        t_images, t_cams = load_views(target_set, targets, size, background, progress=True)
         near, far, nf_source = near_far(posed, inputs, cameras, args.near, args.far)
         name = posed.source.parent.name if posed.kind == "transforms" else posed.source.name
         case = PosedCase(images, cameras, t_images, t_cams, near, far, name or "posed")
@@ -183,7 +195,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     names = ", ".join(posed.views[i].name for i in inputs)
     print(
-        f"{len(targets)} held-out frames of {posed.source} ({posed.kind}) from inputs {names} at "
+        f"{len(targets)} held-out frames of {target_set.source} ({target_set.kind}) from inputs "
+        f"{names} of {posed.source} at "
         f"{size[0]}x{size[1]}; near/far {near:.3g}/{far:.3g} ({nf_source}); background "
         f"{bg_text}"
     )

@@ -35,7 +35,7 @@ def colmap_text(tmp_path_factory) -> Path:
 
 def _one_line_error(capsys, command: str) -> str:
     err = capsys.readouterr().err.strip().splitlines()
-    err = [line for line in err if not line.startswith(("reading", "rendering"))]  # tqdm
+    err = [e for e in err if e.strip() and not e.startswith(("reading", "rendering"))]  # tqdm
     assert len(err) == 1 and err[0].startswith(f"prosplat {command}: "), err
     return err[0]
 
@@ -222,3 +222,20 @@ def test_reconstruct_nerf_synthetic_rgba_says_white(tmp_path):
     assert cli("reconstruct", path, "--out", out, "--size", "32", "--num-inputs", "2") == 0
     assert "background for RGBA: white (NeRF-synthetic" in (out / "report.md").read_text()
     assert read_image(out / "inputs" / "000.png")[:, :, :8].min() == 1.0  # composited on white
+
+
+def test_eval_posed_with_a_separate_target_set(tmp_path, capsys):
+    """NeRF synthetic's protocol: inputs from transforms_train.json, targets from
+    transforms_test.json (same world frame)."""
+    cams = scene_cameras(5, 32, 32)
+    train = write_transforms_set(tmp_path / "train", cams[0::2])  # 3 frames, all inputs
+    test = write_transforms_set(tmp_path / "test", cams[1::2])  # 2 other frames
+    out = tmp_path / "eval"
+    assert cli("eval", "posed", train, "--out", out, "--size", "32", "--num-inputs", "3",
+               "--target-set", test) == 0  # fmt: skip
+    rows = list(csv.DictReader(open(out / "scores.csv")))
+    assert len(rows) == 2 * len(ROWS) and {r["views"] for r in rows} == {"3"}
+    capsys.readouterr()
+    assert cli("eval", "posed", train, "--out", tmp_path / "e2", "--size", "32",
+               "--num-inputs", "3") == 2  # no held-out frame left, and no target set  # fmt: skip
+    assert "--target-set" in _one_line_error(capsys, "eval posed")
