@@ -262,6 +262,23 @@ def add_bench_parsers(sub) -> None:
         p.set_defaults(func=module.run)
 
 
+def add_posed_parsers(sub, eval_sub=None) -> None:
+    """``prosplat reconstruct`` (into ``sub``) or ``prosplat eval posed`` (into ``eval_sub``):
+    your own posed images; options live beside their engines."""
+    from prosplat import evaluate_posed, reconstruct
+
+    if eval_sub is None:
+        name, module, parent = "reconstruct", reconstruct, sub
+        text = "your own posed images (transforms.json, COLMAP) -> Gaussians + enhanced renders"
+    else:
+        name, module, parent = "posed", evaluate_posed, eval_sub
+        text = "score flat / paste / generator / enhanced on the held-out frames of a posed set"
+    p = parent.add_parser(name, help=text, description=module.__doc__)
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    module.add_arguments(p)
+    p.set_defaults(func=module.run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="prosplat", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -276,8 +293,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="(default out/demo)")
     demo.add_argument("--scene", default="tabletop", help="scene family or hard scene name")
     demo.add_argument("--seed", type=int, default=950002, help="scene seed (default: a test one)")
+    from prosplat.pipeline import TRAINED_SIZE
+
     demo.add_argument(
-        "--size", type=int, default=64, help="model resolution, multiple of 32 (default 64)"
+        "--size",
+        type=int,
+        default=TRAINED_SIZE,
+        help=f"model resolution, multiple of 32 (default {TRAINED_SIZE}: the shipped weights')",
     )
     demo.add_argument(
         "--render-scale", type=int, default=2, help="Blender renders at size x this (default 2)"
@@ -438,8 +460,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_train_parsers(train_sub)
 
     add_bench_parsers(sub)
+    add_posed_parsers(sub)
 
-    ev = sub.add_parser("eval", help="evaluate models on rendered test scenes")
+    ev = sub.add_parser("eval", help="evaluate models on rendered test scenes or posed sets")
     ev_sub = ev.add_subparsers(dest="eval_command", required=True)
     eg = ev_sub.add_parser(
         "generator",
@@ -477,6 +500,7 @@ def build_parser() -> argparse.ArgumentParser:
     eg.add_argument("--out", type=Path, default=Path("out/eval"), help="where scores go")
     eg.set_defaults(func=cmd_eval_generator)
     add_eval_parser(ev_sub)
+    add_posed_parsers(sub, ev_sub)
     return parser
 
 

@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from prosplat.camera import Camera
 from prosplat.data.scene import SceneData, load_scene, resize_views
+from prosplat.pipeline import TRAINED_SIZE
 
 DEMO_SCENE = "tabletop"  # a family or hard-scene name (scenes.builders)
 DEMO_SEED = 950002  # test split: never seen in training
@@ -55,7 +56,7 @@ class DemoConfig:
     out: Path = Path("out/demo")
     scene: str = DEMO_SCENE
     seed: int = DEMO_SEED
-    size: int = 64  # model resolution, a multiple of 32 (the shipped weights: 64)
+    size: int = TRAINED_SIZE  # model resolution, a multiple of 32 (the shipped weights')
     render_scale: int = 2  # Blender renders size * render_scale, downsampled to size
     inputs: int = 4
     targets: int = 8

@@ -401,9 +401,14 @@ def test_reconstruct_derives_near_far_and_rejects_coincident_cameras():
     model = ProSplat(SMALL)
     cams = rig(3, 32, 32)
     near, far = near_far_from_cameras(cams)
-    b_min = min(float((a.center - b.center).norm()) for a in cams for b in cams if a is not b)
-    assert near == pytest.approx(0.5 * b_min * 0.9)  # f / W = 0.9 in rig()
-    assert far > 100 * b_min
+    # the rig looks at the origin from ~4 units: near/far bracket the origin's depth
+    depths = [float(c.world_to_camera(torch.zeros(1, 3, dtype=c.K.dtype))[0, 2]) for c in cams]
+    assert near == pytest.approx(0.5 * min(depths), rel=1e-6)
+    assert far == pytest.approx(2.5 * max(depths), rel=1e-6)
+    # a forward-facing rig (parallel axes) keeps the baseline rule: matchable depths start at b·f/S
+    parallel = [Camera.look_at((x, 0, -4), (x, 0, 0), (0, -1, 0), 28.8, 32, 32) for x in (0, 1)]
+    pnear, pfar = near_far_from_cameras(parallel)
+    assert pnear == pytest.approx(0.5 * 1.0 * 0.9) and pfar == pytest.approx(100.0)
     images = torch.rand(3, 3, 32, 32)
     out = model.reconstruct_full(images, cams)
     assert (out.depths >= near * 0.999).all() and (out.depths <= far * 1.001).all()

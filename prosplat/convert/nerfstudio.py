@@ -11,8 +11,12 @@ The file holds intrinsics either at the top level or per frame (a frame's value 
 
 ``transform_matrix`` is an OpenGL camera-to-world matrix (x right, y up, looking down −z);
 it is flipped to OpenCV axes with :data:`~prosplat.convert.blender.OPENGL_TO_OPENCV`, the same
-flip Blender cameras need. Lens distortion is not modelled: a file with non-zero ``k1 k2 k3
-k4 p1 p2`` is rejected rather than silently mis-projected.
+flip Blender cameras need. Lens distortion (``k1 k2 k3 k4 p1 p2``; ``camera_model`` ``OPENCV``
+or ``OPENCV_FISHEYE``, or instant-ngp's ``"is_fisheye": true``) is read only with
+``read_transforms(..., allow_distortion=True)``, which puts a
+:class:`~prosplat.convert.distortion.Distortion` on each frame (see that module for the
+models); by default a file with non-zero coefficients is rejected rather than silently
+mis-projected.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import torch
 
 from prosplat.camera import Camera
 from prosplat.convert.blender import OPENGL_TO_OPENCV
+from prosplat.convert.distortion import Distortion
 
 __all__ = ["TRANSFORMS_NAME", "Frame", "TransformsFile", "read_transforms", "write_transforms"]
 
@@ -38,8 +43,12 @@ _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 _CAMERA_MODEL_KEY = "camera_model"
 # Pinhole-compatible nerfstudio camera models (OPENCV and friends only with zero distortion).
 _PINHOLE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL", "PERSPECTIVE")
+_FISHEYE_MODELS = ("OPENCV_FISHEYE", "FISHEYE")
+_FISHEYE_FLAG = "is_fisheye"  # instant-ngp's way of saying OPENCV_FISHEYE
 _FRAME_KEYS = ("file_path", "transform_matrix")
-_RESERVED = set(_INTRINSIC_KEYS) | set(_DISTORTION_KEYS) | {_CAMERA_MODEL_KEY, "frames"}
+_RESERVED = (
+    set(_INTRINSIC_KEYS) | set(_DISTORTION_KEYS) | {_CAMERA_MODEL_KEY, _FISHEYE_FLAG, "frames"}
+)
 # Extensions tried when a frame's file_path has none (NeRF synthetic writes "./train/r_0").
 _IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".exr", ".PNG", ".JPG", ".JPEG", ".EXR")
 
@@ -52,6 +61,7 @@ class Frame:
     camera: Camera
     file_path: str
     extra: dict[str, Any] = field(default_factory=dict)
+    distortion: Distortion | None = None  # only with read_transforms(allow_distortion=True)
 
 
 @dataclass
@@ -104,27 +114,55 @@ def _number(value: Any, what: str) -> float:
     return v
 
 
+def _frame_lens(get, where: str, allow_distortion: bool) -> Distortion | None:
+    """The frame's lens model (None: pinhole), or an error when distortion is not allowed."""
+    model = get(_CAMERA_MODEL_KEY)
+    model = None if model is None else str(model).upper()
+    fisheye = model in _FISHEYE_MODELS or bool(get(_FISHEYE_FLAG))
+    if model is not None and model not in _PINHOLE_MODELS and not fisheye:
+        raise ValueError(
+            f"{where}: camera_model {model!r} is not supported; use PINHOLE, OPENCV or "
+            "OPENCV_FISHEYE, or undistort the images first"
+        )
+    coeffs = {k: _number(get(k), f"{where}: {k}") for k in _DISTORTION_KEYS if get(k) is not None}
+    if not allow_distortion:
+        if fisheye:
+            raise ValueError(
+                f"{where}: camera_model {model or 'OPENCV_FISHEYE'} is a fisheye; only "
+                "undistorted pinhole images are read here (undistort the images first, or use "
+                "`prosplat reconstruct`, which undistorts them)"
+            )
+        for key, v in coeffs.items():
+            if v != 0.0:
+                raise ValueError(
+                    f"{where}: distortion {key}={v} is non-zero; distorted cameras are read only "
+                    "with read_transforms(..., allow_distortion=True) (`prosplat reconstruct` "
+                    "undistorts them), or undistort the images first (e.g. ns-process-data or "
+                    "COLMAP's image_undistorter) and write zero distortion"
+                )
+        return None
+    if not fisheye and not any(coeffs.values()):
+        return None
+    try:
+        return Distortion("fisheye" if fisheye else "opencv", **coeffs)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
+
+
 def _frame_camera(
-    frame: dict, top: dict, root: Path, where: str, image_size: tuple[int, int] | None
-) -> Camera:
-    """The camera of one frame; ``where`` names the frame in error messages."""
+    frame: dict,
+    top: dict,
+    root: Path,
+    where: str,
+    image_size: tuple[int, int] | None,
+    allow_distortion: bool = False,
+) -> tuple[Camera, Distortion | None]:
+    """The camera and lens of one frame; ``where`` names the frame in error messages."""
 
     def get(key: str) -> Any:
         return frame[key] if key in frame else top.get(key)
 
-    model = get(_CAMERA_MODEL_KEY)
-    if model is not None and str(model).upper() not in _PINHOLE_MODELS:
-        raise ValueError(
-            f"{where}: camera_model {model!r} is not a pinhole model; only undistorted "
-            "pinhole images are supported (undistort the images first)"
-        )
-    for key in _DISTORTION_KEYS:
-        if get(key) is not None and _number(get(key), f"{where}: {key}") != 0.0:
-            raise ValueError(
-                f"{where}: distortion {key}={get(key)} is non-zero; distorted camera models are "
-                "not supported, undistort the images first (e.g. ns-process-data or COLMAP's "
-                "image_undistorter) and write zero distortion"
-            )
+    lens = _frame_lens(get, where, allow_distortion)
 
     w, h = get("w"), get("h")
     if (w is None) != (h is None):
@@ -184,18 +222,24 @@ def _frame_camera(
     w2c[:3, 3] = -R.T @ c2w[:3, 3]
     w2c[3] = m[3]  # keep a bad last row visible to Camera's check
     try:
-        return Camera.from_intrinsics(fx, fy, cx, cy, W, H, w2c)
+        return Camera.from_intrinsics(fx, fy, cx, cy, W, H, w2c), lens
     except ValueError as e:
         raise ValueError(f"{where}: {e}") from None
 
 
-def read_transforms(path: str | Path, image_size: tuple[int, int] | None = None) -> TransformsFile:
+def read_transforms(
+    path: str | Path,
+    image_size: tuple[int, int] | None = None,
+    allow_distortion: bool = False,
+) -> TransformsFile:
     """Read a ``transforms.json`` (or a folder holding one).
 
     Args:
         path: the json file, or a folder containing ``transforms.json``.
         image_size: (w, h) for files without ``w``/``h``; when omitted the size is read from
             each frame's image header (OpenImageIO).
+        allow_distortion: read OpenCV / fisheye lens coefficients into ``Frame.distortion``
+            instead of refusing them.
     Raises:
         FileNotFoundError: the file, or an image needed for its size, is missing.
         ValueError: malformed json, missing keys, NaN poses, distortion.
@@ -224,9 +268,9 @@ def read_transforms(path: str | Path, image_size: tuple[int, int] | None = None)
             if key not in frame:
                 raise ValueError(f"{where} has no '{key}'; every frame needs {_FRAME_KEYS}")
         where = f"{p} frame {i} ({frame['file_path']})"
-        camera = _frame_camera(frame, data, p.parent, where, image_size)
+        camera, lens = _frame_camera(frame, data, p.parent, where, image_size, allow_distortion)
         extra = {k: v for k, v in frame.items() if k not in _RESERVED and k not in _FRAME_KEYS}
-        frames.append(Frame(camera=camera, file_path=str(frame["file_path"]), extra=extra))
+        frames.append(Frame(camera, str(frame["file_path"]), extra, lens))
     meta = {k: v for k, v in data.items() if k not in _RESERVED}
     return TransformsFile(frames=frames, meta=meta, path=p)
 
@@ -277,6 +321,11 @@ def write_transforms(
     out.update(meta)
     out_frames = []
     for i, (f, k) in enumerate(zip(frames, intr, strict=True)):
+        if f.distortion is not None and not f.distortion.is_identity:
+            raise ValueError(
+                f"frame {i} ({f.file_path}) has lens distortion, which write_transforms does not "
+                "write; undistort it first (prosplat.convert.distortion.undistort_view)"
+            )
         bad = sorted((set(f.extra) & _RESERVED) | (set(f.extra) & set(_FRAME_KEYS)))
         if bad:
             raise ValueError(f"frame {i} ({f.file_path}): extra keys {bad} are reserved; drop them")

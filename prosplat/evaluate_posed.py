@@ -1,0 +1,205 @@
+"""``prosplat eval posed``: any posed set scored on its held-out frames.
+
+The input views (picked as ``prosplat reconstruct`` picks them) are reconstructed once; every
+other frame (``--targets`` of them, evenly spread; or the frames of ``--target-set``, another
+file in the same world frame such as NeRF synthetic's ``transforms_test.json``) is a target,
+read, undistorted and resized the same way, and four predictions are scored against it with
+PSNR / SSIM / LPIPS (:mod:`prosplat.metrics`):
+
+* ``flat``: one colour everywhere, the mean colour of the input images;
+* ``paste``: the input MORI picks as the reference, resampled to the target's size, as is;
+* ``generator``: the generator's render; ``enhanced``: that render after stage 2.
+
+:func:`score_cases` takes plain tensors (a list of :class:`PosedCase`), so the same rows can
+come from any source of posed views.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from prosplat.camera import Camera
+from prosplat.evaluate import Score, markdown_table, score_view, summarise
+
+__all__ = ["ROWS", "PosedCase", "add_arguments", "run", "score_cases", "write_results"]
+
+ROWS = ("flat", "paste", "generator", "enhanced")
+
+
+class PosedCase(NamedTuple):
+    """One evaluation: input ``images [N,3,H,W]`` and ``cameras``, held-out
+    ``target_images [T,3,H',W']`` and ``target_cameras``; near/far (None: estimated from the
+    cameras) and a name for the tables."""
+
+    images: Tensor
+    cameras: Sequence[Camera]
+    target_images: Tensor
+    target_cameras: Sequence[Camera]
+    near: float | None = None
+    far: float | None = None
+    name: str = "posed"
+
+
+def flat_prediction(images: Tensor, camera: Camera) -> Tensor:
+    """The inputs' mean colour everywhere, at ``camera``'s size."""
+    colour = images.mean(dim=(0, 2, 3))
+    return colour[:, None, None].expand(3, camera.height, camera.width).contiguous()
+
+
+def paste_prediction(
+    images: Tensor, cameras: Sequence[Camera], camera: Camera
+) -> tuple[Tensor, int]:
+    """MORI's reference input for ``camera``, resampled to its size, and its index."""
+    from prosplat.enhance import reference_at
+    from prosplat.improve.mori import select_reference
+
+    ref = select_reference(camera, list(cameras))
+    image, _ = reference_at(images[ref], cameras[ref], camera.width, camera.height)
+    return image.clamp(0, 1), ref
+
+
+def score_cases(
+    model,
+    cases: Sequence[PosedCase],
+    *,
+    budget: int | float | None = None,
+    background: Tensor | None = None,
+    reconstruct_kwargs: dict | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> list[Score]:
+    """Scores (:class:`prosplat.evaluate.Score`, ``method`` in :data:`ROWS`) of every target of
+    every case. ``enhanced`` rows need ``model.improver``; without one they are left out.
+    ``reconstruct_kwargs`` (e.g. refinement) go to ``model.reconstruct``; without them the
+    generator's Gaussians are pruned to ``budget`` as everywhere else."""
+    from prosplat.budget import prune_pixel_aligned
+
+    rows: list[Score] = []
+    for case in cases:
+        images, cams = case.images, list(case.cameras)
+        n = len(cams)
+        t0 = time.perf_counter()
+        if reconstruct_kwargs:
+            g = model.reconstruct(images, cams, case.near, case.far, **reconstruct_kwargs)
+            g = g.detach()
+        else:
+            out = model.reconstruct_full(images, cams, case.near, case.far)
+            g = prune_pixel_aligned(out.gaussians(0), out.depths[0], cams, budget=budget)[0]
+        recon_s = time.perf_counter() - t0
+        for gt, cam in zip(case.target_images, case.target_cameras, strict=True):
+            t1 = time.perf_counter()
+            flat = flat_prediction(images, cam)
+            t2 = time.perf_counter()
+            pasted, _ = paste_prediction(images, cams, cam)
+            t3 = time.perf_counter()
+            view = model.render(g, cam, images, cams, enhance=model.improver is not None,
+                                background=background, dtype=dtype)  # fmt: skip
+            t = view.timings
+            preds = [("flat", flat, 0.0, 1e3 * (t2 - t1), 0),
+                     ("paste", pasted, 0.0, 1e3 * (t3 - t2), 0),
+                     ("generator", view.raw, recon_s, t["render_ms"], len(g))]  # fmt: skip
+            if model.improver is not None:
+                ms = t["render_ms"] + t["mori_ms"] + t["enhance_ms"]
+                preds.append(("enhanced", view.image, recon_s, ms, len(g)))
+            for method, pred, rs, ms, count in preds:
+                rows.append(score_view(method, n, "held-out", case.name, pred, gt, rs, ms, count))
+    return rows
+
+
+def write_results(rows: list[Score], out: Path, overwrite: bool = False) -> str:
+    """``summary.md`` (the table, returned), ``scores.csv`` and ``scores.json`` (per target)."""
+    import csv
+    import json
+    from dataclasses import asdict, fields
+
+    order = {m: i for i, m in enumerate(ROWS)}
+    summary = sorted(summarise(rows), key=lambda s: (s["views"], order.get(s["method"], 99)))
+    table = markdown_table(summary)
+    out.mkdir(parents=True, exist_ok=True)
+    mode = "w" if overwrite else "x"
+    with open(out / "summary.md", mode) as fh:
+        fh.write(table + "\n")
+    with open(out / "scores.json", mode) as fh:
+        json.dump({"summary": summary, "targets": [asdict(r) for r in rows]}, fh, indent=1)
+    with open(out / "scores.csv", mode, newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=[f.name for f in fields(Score)])
+        w.writeheader()
+        for r in rows:
+            w.writerow(asdict(r))
+    return table
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from prosplat.reconstruct import add_common_arguments
+
+    add_common_arguments(p)
+    p.add_argument(
+        "--targets",
+        type=int,
+        default=8,
+        help="held-out frames to score, evenly spread (default 8; 0 = all)",
+    )
+    p.add_argument(
+        "--target-set",
+        type=Path,
+        default=None,
+        help="take the targets from this other posed file in the same world frame (e.g. "
+        "NeRF synthetic's transforms_test.json) instead of INPUT's held-out frames",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from prosplat.posed_views import load_posed_set, load_views
+    from prosplat.reconstruct import (
+        load_model,
+        near_far,
+        out_folder,
+        prepare,
+        refine_kwargs,
+        render_selection,
+    )
+
+    try:
+        out = out_folder(args.out, args.overwrite)
+        keep = 0 if args.target_set else 1
+        posed, inputs, background, bg_text, size = prepare(args, keep_targets=keep)
+        target_set = load_posed_set(args.target_set, None) if args.target_set else posed
+        held_out = [] if args.target_set else inputs
+        targets = render_selection(target_set.names, held_out, ["held-out"], args.targets)
+        if not targets:
+            raise ValueError(
+                f"{posed.source} has no frames besides the {len(inputs)} inputs; nothing to "
+                "score (or give --target-set)"
+            )
+        model = load_model(args)
+        kwargs = refine_kwargs(model, args.refine_steps, args.refine_seconds)
+        images, cameras = load_views(posed, inputs, size, background, progress=True)
+        t_images, t_cams = load_views(target_set, targets, size, background, progress=True)
+        near, far, nf_source = near_far(posed, inputs, cameras, args.near, args.far)
+        name = posed.source.parent.name if posed.kind == "transforms" else posed.source.name
+        case = PosedCase(images, cameras, t_images, t_cams, near, far, name or "posed")
+        budget = args.budget
+        budget = None if budget is None else (int(budget) if budget > 1 else budget)
+        rows = score_cases(model, [case], budget=budget, background=background,
+                           reconstruct_kwargs=kwargs)  # fmt: skip
+        table = write_results(rows, out, args.overwrite)
+    except (ValueError, FileNotFoundError, FileExistsError) as e:
+        print(f"prosplat eval posed: {' '.join(str(e).split())}", file=sys.stderr)
+        return 2
+    names = ", ".join(posed.views[i].name for i in inputs)
+    print(
+        f"{len(targets)} held-out frames of {target_set.source} ({target_set.kind}) from inputs "
+        f"{names} of {posed.source} at "
+        f"{size[0]}x{size[1]}; near/far {near:.3g}/{far:.3g} ({nf_source}); background "
+        f"{bg_text}"
+    )
+    print(table)
+    print(f"wrote {out / 'summary.md'}, scores.csv and scores.json")
+    return 0
