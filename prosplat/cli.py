@@ -423,6 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
         "depth_weight",
         "input_depth_weight",
         "input_render_weight",
+        "crop_prob",
         "grad_clip",
     ):
         tg.add_argument(

@@ -13,7 +13,7 @@ from prosplat.data.dataset import ItemKey
 from prosplat.data.packed import Pack, pack_scenes
 from prosplat.data.scene import load_scene
 from prosplat.metrics import psnr
-from prosplat.train.generator import resize_batch, train_sizes
+from prosplat.train.generator import crop_batch, resize_batch, train_sizes
 
 
 @pytest.fixture(scope="module")
@@ -133,3 +133,26 @@ def test_the_pack_command_splits_and_never_overwrites(scenes, tmp_path, capsys):
     assert sum(len(Pack(p)) for p in packs) == 3
     with pytest.raises(FileExistsError):
         main(args)
+
+
+def test_a_crop_keeps_every_pixel_on_its_ray():
+    """crop_batch: the cropped camera sees the same pixels (same rays), depth untouched."""
+    from prosplat.camera import Camera
+
+    h = 64
+    img = torch.rand(1, 1, 3, h, h)
+    depth = torch.rand(1, 1, h, h) + 1
+    K = torch.tensor([[50.0, 0, 30], [0, 55, 33], [0, 0, 1]])[None, None]
+    w2c = torch.eye(4)[None, None]
+    batch = {"input_images": img, "input_depths": depth, "input_K": K, "input_w2c": w2c}
+    out = crop_batch(batch, 32, top=5, left=20)
+    assert torch.equal(out["input_images"][0, 0], img[0, 0, :, 5:37, 20:52])
+    assert torch.equal(out["input_depths"][0, 0], depth[0, 0, 5:37, 20:52])
+    full = Camera(K[0, 0], w2c[0, 0], h, h)
+    crop = Camera(out["input_K"][0, 0], w2c[0, 0], 32, 32)
+    p = torch.tensor([[0.3, -0.2, 2.0]], dtype=full.K.dtype)
+    uv_full, uv_crop = full.project(p)[0], crop.project(p)[0]
+    assert torch.allclose(uv_full[0] - torch.tensor([20.0, 5.0], dtype=uv_full.dtype), uv_crop[0])
+    assert torch.equal(batch["input_K"], K)  # the input batch is not modified
+    with pytest.raises(ValueError, match="does not fit"):
+        crop_batch(batch, 32, top=40, left=0)

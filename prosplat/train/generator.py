@@ -164,6 +164,30 @@ def resize_batch(batch: dict[str, Tensor], size: int) -> dict[str, Tensor]:
     return out
 
 
+def crop_batch(batch: dict[str, Tensor], size: int, top: int, left: int) -> dict[str, Tensor]:
+    """The ``size`` x ``size`` window at (top, left) of every image and depth of a batch, the
+    intrinsics shifted to match: the same scene seen by narrower cameras, at the data's own
+    pixel scale (no resampling, so depth stays exact). A cheap augmentation that makes one
+    rendered scene serve several framings."""
+    from prosplat.generator.cost_volume import scale_intrinsics
+
+    h, w = batch["input_images"].shape[-2:]
+    if not (0 <= top <= h - size and 0 <= left <= w - size):
+        raise ValueError(f"crop {size} px at ({top}, {left}) does not fit {w}x{h} images")
+    out = dict(batch)
+    for key in ("input_images", "target_images", "input_depths", "target_depths"):
+        if key in batch:
+            out[key] = batch[key][..., top : top + size, left : left + size]
+    for key in ("input_K", "target_K"):
+        if key not in batch:
+            continue
+        K = scale_intrinsics(batch[key], 1.0, 1.0)  # a copy
+        K[..., 0, 2] -= left
+        K[..., 1, 2] -= top
+        out[key] = K
+    return out
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything a run depends on; saved beside its checkpoints as ``train_config.json``."""
@@ -191,6 +215,8 @@ class TrainConfig:
     # for every size; data is downsampled, never upsampled
     sizes: str = ""
     any_view: bool = False  # draw inputs/targets from all of a scene's views (SceneDataset)
+    # at a size below the data's, this share of steps crops a window instead of downsampling
+    crop_prob: float = 0.0
     cache_scenes: int = 32  # decoded scenes kept in memory (raise it where memory allows)
     init: str | None = None  # start from these weights (a fresh optimiser, step 0)
     grad_clip: float = 0.5
@@ -383,6 +409,16 @@ class _StepBatches:
             yield [ItemKey(i, epoch, n) for i in idx]
 
 
+def _step_view(batch: dict[str, Tensor], cfg: TrainConfig, step: int) -> dict[str, Tensor]:
+    """This step's image size, and a crop or a downsample to reach it (seeded by the step)."""
+    size = draw_count(cfg.size_choices, cfg.seed + 7919, step)
+    h, w = batch["input_images"].shape[-2:]
+    rng = random.Random(f"prosplat-crop/{cfg.seed}/{step}")
+    if size < min(h, w) and rng.random() < cfg.crop_prob:
+        return crop_batch(batch, size, rng.randint(0, h - size), rng.randint(0, w - size))
+    return resize_batch(batch, size)
+
+
 def _weights_metadata(pipe) -> dict[str, str]:
     """The metadata ``ProSplat.save`` writes, so a training checkpoint loads with
     ``ProSplat.from_pretrained`` like any other."""
@@ -487,7 +523,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             n_views = int(batch["input_images"].shape[1])
             batch = _to(batch, device)
             if cfg.size_choices:  # a size per step, seeded apart from the view count's draw
-                batch = resize_batch(batch, draw_count(cfg.size_choices, cfg.seed + 7919, step))
+                batch = _step_view(batch, cfg, step)
             for group in opt.param_groups:
                 group["lr"] = lr_at(step, cfg)
             output = ddp_model(*_model_inputs(batch))
