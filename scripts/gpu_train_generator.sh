@@ -7,11 +7,12 @@
 # Everything it keeps between calls lives under /tmp (a warm machine keeps /tmp), so each call
 # adds the packs it carries and resumes the run in /tmp/run; the weights and the log go to
 # $OUT at the end of every call. Usage (from the repository root on the GPU machine):
-#   scripts/gpu_train_generator.sh SECONDS [extra `prosplat train generator` options]
-# SECONDS bounds the training of this call; the run is killed then, and resumes next call
-# from its last checkpoint (--save-every).
+#   scripts/gpu_train_generator.sh SECONDS NAME "OPTIONS" [NAME "OPTIONS" ...]
+# Each NAME is a run in /tmp/runs/NAME with its `prosplat train generator` options; the runs
+# share the GPU and train at once. SECONDS bounds this call; the runs are stopped then and
+# resume next call from their last checkpoint (--save-every).
 set -uo pipefail
-budget=${1:?usage: gpu_train_generator.sh SECONDS [train options]}
+budget=${1:?usage: gpu_train_generator.sh SECONDS NAME "OPTIONS" [NAME "OPTIONS" ...]}
 shift
 t0=$(date +%s)
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
@@ -54,8 +55,20 @@ echo "setup took $(( $(date +%s) - t0 )) s; gsplat: $(ls /tmp/gsplat_ok /tmp/gsp
 data=$(ls /tmp/data/train*.npz | paste -sd, -)
 val=$(ls /tmp/data/val*.npz 2>/dev/null | head -1)
 left=$(( budget - ($(date +%s) - t0) ))
-timeout --signal=INT "$left" python3 -m prosplat train generator --device cuda --data "$data" \
-  ${val:+--val "$val"} --out /tmp/run "$@"
-echo "train exit $?"
-cp /tmp/run/checkpoint.safetensors /tmp/run/log.jsonl /tmp/run/train_config.json "$OUT"/ 2>/dev/null
-tail -3 /tmp/run/log.jsonl
+names=()
+while [ $# -ge 2 ]; do
+  name=$1 opts=$2
+  shift 2
+  names+=("$name")
+  # shellcheck disable=SC2086  # OPTIONS is a list of words
+  timeout --signal=INT "$left" python3 -m prosplat train generator --device cuda --data "$data" \
+    ${val:+--val "$val"} --out "/tmp/runs/$name" $opts > "/tmp/runs_$name.log" 2>&1 &
+done
+wait
+for name in "${names[@]}"; do
+  echo "== $name"
+  grep -v "it/s\]" "/tmp/runs_$name.log" | tail -5
+  tail -2 "/tmp/runs/$name/log.jsonl"
+  cp "/tmp/runs/$name/checkpoint.safetensors" "$OUT/${name}_checkpoint.safetensors"
+  cp "/tmp/runs/$name/log.jsonl" "$OUT/${name}_log.jsonl"
+done
