@@ -7,18 +7,11 @@ import os
 import sys
 from pathlib import Path
 
+from prosplat.paths import fresh_folder
 
-def _fresh_folder(path: Path, overwrite: bool) -> Path:
-    """``path`` if it is new, empty, or ``overwrite``; otherwise the first free ``path-N``.
-
-    Earlier results are never clobbered by a re-run unless the user asks.
-    """
-    if overwrite or not path.exists() or not any(path.iterdir()):
-        return path
-    k = 2
-    while (candidate := path.with_name(f"{path.name}-{k}")).exists() and any(candidate.iterdir()):
-        k += 1
-    return candidate
+# Moved to prosplat.paths (bench/, demo and the ladder import it from there, not from the CLI
+# that imports them); the old name stays for code written against it.
+_fresh_folder = fresh_folder
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -198,25 +191,7 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     for folder in tqdm(folders, desc="evaluating scenes", unit="scene"):
         budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
         rows += evaluate.evaluate_scene(load_scene(folder), methods, args.views, budget=budget)
-    return write_scores(rows, args.out)
-
-
-def write_scores(rows: list, out: Path) -> int:
-    """Print the summary table of ``rows`` (evaluate.Score) and write ``summary.md`` and
-    ``scores.json`` into a fresh folder at ``out`` (never over an earlier evaluation)."""
-    import json
-    from dataclasses import asdict
-
-    from prosplat import evaluate
-
-    table = evaluate.markdown_table(evaluate.summarise(rows))
-    print(table)
-    out = _fresh_folder(out, overwrite=False)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
-    (out / "summary.md").write_text(table + "\n")
-    print(f"wrote {out / 'summary.md'} and scores.json")
-    return 0
+    return evaluate.write_scores(rows, args.out)
 
 
 def add_bench_parsers(sub) -> None:

@@ -64,8 +64,8 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from prosplat.cli import write_scores
     from prosplat.data import find_scenes, load_scene
+    from prosplat.evaluate import write_scores
     from prosplat.evaluate_improve import Row, evaluate_rows
     from prosplat.improve.io import load_improver
     from prosplat.pipeline import ProSplat

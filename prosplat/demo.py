@@ -163,15 +163,15 @@ def downsample(scene: SceneData, size: int) -> tuple[Tensor, list[Camera]]:
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Run the whole demo into a fresh folder (see the module docstring); returns the numbers."""
     from prosplat.budget import prune_pixel_aligned
-    from prosplat.cli import _fresh_folder
     from prosplat.demo_report import write_report
     from prosplat.metrics import lpips, psnr, ssim
+    from prosplat.paths import fresh_folder
     from prosplat.pipeline import ProSplat
     from prosplat.ply import write_ply
 
     cfg.check()
     t_start = time.perf_counter()
-    out = _fresh_folder(cfg.out, cfg.overwrite)
+    out = fresh_folder(cfg.out, cfg.overwrite)
     if cfg.overwrite:
         _remove_earlier_demo(out)
     out.mkdir(parents=True, exist_ok=True)

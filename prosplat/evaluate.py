@@ -9,10 +9,12 @@ against Blender's Z pass. Rows are grouped by method, view count and target kind
 
 from __future__ import annotations
 
+import json
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -22,6 +24,7 @@ from prosplat.camera import Camera
 from prosplat.data.rigs import farthest_point_sampling
 from prosplat.data.scene import SceneData
 from prosplat.gaussians import Gaussians
+from prosplat.paths import fresh_folder
 from prosplat.render import render
 
 # A method maps (images [V,3,H,W], cameras, near, far) to (Gaussians, per-view depths [V,H,W]).
@@ -220,3 +223,17 @@ def markdown_table(summary: list[dict]) -> str:
             f"{s['render_ms']:.1f} | {s['gaussians']:.0f} |"
         )
     return "\n".join(lines)
+
+
+def write_scores(rows: list[Score], out: Path) -> int:
+    """Print the summary table of ``rows`` and write ``summary.md`` and ``scores.json`` into a
+    fresh folder at ``out`` (never over an earlier evaluation). Used by ``prosplat eval
+    generator`` and ``prosplat eval improve``."""
+    table = markdown_table(summarise(rows))
+    print(table)
+    out = fresh_folder(out, overwrite=False)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
+    (out / "summary.md").write_text(table + "\n")
+    print(f"wrote {out / 'summary.md'} and scores.json")
+    return 0

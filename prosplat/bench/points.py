@@ -308,7 +308,7 @@ def _load(args: argparse.Namespace, axes: Axes) -> list[tuple[str, SceneData]]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from prosplat.cli import _fresh_folder
+    from prosplat.paths import fresh_folder
     from prosplat.pipeline import ProSplat
 
     try:
@@ -344,7 +344,7 @@ def run(args: argparse.Namespace) -> int:
         seconds=round(time.perf_counter() - started, 1),
         points=[asdict(p) for p in points],
     )
-    out = _fresh_folder(args.out, args.overwrite)
+    out = fresh_folder(args.out, args.overwrite)
     out.mkdir(parents=True, exist_ok=True)
     (out / "points.json").write_text(
         json.dumps(dict(meta=meta, rows=rows, summary=summary), indent=1)
