@@ -394,6 +394,17 @@ def build_parser() -> argparse.ArgumentParser:
     eg.add_argument("--out", type=Path, default=Path("out/eval"), help="where scores go")
     eg.set_defaults(func=cmd_eval_generator)
     add_eval_parser(ev_sub)
+    from prosplat.ladder import cli as ladder_cli
+
+    el = ev_sub.add_parser(
+        "ladder",
+        help="every ladder row (flat, paste, optimisation, generator, enhanced, true depth) "
+        "with intervals, per family / overlap bin / target kind",
+        description=ladder_cli.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ladder_cli.add_arguments(el)
+    el.set_defaults(func=ladder_cli.run)
     return parser
 
 
