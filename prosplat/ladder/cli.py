@@ -114,6 +114,19 @@ def run(args: argparse.Namespace) -> int:
         if not rungs:
             raise ValueError("no ladder row can run")
         scenes = [load_scene(f) for f in folders]
+        for scene in scenes:  # every scene fits every setting, before any work
+            if (h := scene.images.shape[-2]) < max(args.sizes):
+                raise ValueError(
+                    f"{scene.folder} is {h} px high, cannot evaluate at {max(args.sizes)} px; "
+                    "lower --sizes"
+                )
+            if (n := len(scene.input_indices)) < max(args.views):
+                raise ValueError(
+                    f"{scene.folder} has {n} input views, cannot evaluate {max(args.views)}; "
+                    "lower --views"
+                )
+            if scene.depths is None or not scene.target_indices:
+                raise ValueError(f"{scene.folder} needs depth maps and target views")
     except (ValueError, FileNotFoundError) as e:
         return fail(str(e))
     started = time.perf_counter()
@@ -123,10 +136,7 @@ def run(args: argparse.Namespace) -> int:
             warm_up(scenes[0], rungs, views, size)
             bar = tqdm(scenes, desc=f"ladder {size} px, {views} views", unit="scene")
             for scene in bar:
-                try:
-                    scores += evaluate_scene(scene, rungs, views, size)
-                except ValueError as e:
-                    return fail(str(e))
+                scores += evaluate_scene(scene, rungs, views, size)
     summary = report.summarise(scores, seed=args.seed)
     machine = f"{platform.node()} {platform.machine()} {platform.processor() or ''}".strip()
     meta = dict(

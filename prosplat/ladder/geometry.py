@@ -24,10 +24,11 @@ from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 
 #: a true-depth Gaussian's standard deviation in units of its pixel's footprint (depth / fx).
-#: 0.5 lets neighbouring Gaussians overlap enough to close gaps when a target sees the surface
-#: a little closer than the input did, without smearing the input's own view (the rasterizer
-#: adds 0.3 px² on top).
-FOOTPRINT_SIGMA = 0.5
+#: Small enough not to smear the input's own view (the rasterizer adds 0.3 px² anyway), large
+#: enough to close gaps where a target sees a surface closer than an input did. Measured on
+#: two test scenes at 64 px (valid-region PSNR over the targets, open / room): 0.2 → 20.3 /
+#: 19.0 dB, 0.35 → 21.9 / 19.2, 0.5 → 21.4 / 19.1, 0.7 → 19.8 / 18.7, 1.0 → 17.8 / 18.0.
+FOOTPRINT_SIGMA = 0.35
 #: opacity of a true-depth Gaussian ("~1": alpha saturates at 0.99 anyway)
 TRUE_DEPTH_OPACITY = 1.0
 #: relative depth slack of the visibility test: a point counts as seen by an input when its
