@@ -183,14 +183,16 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     if "optimize" in args.baselines:
         for steps in args.opt_steps:
             methods[f"3DGS opt {steps}"] = evaluate.optimize_method(steps)
-    if not methods:
+    refs = args.references
+    if not methods and not refs:
         print("prosplat eval generator: nothing to evaluate", file=sys.stderr)
         return 2
     folders = find_scenes(args.data)[: args.scenes]
     rows = []
     for folder in tqdm(folders, desc="evaluating scenes", unit="scene"):
         budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
-        rows += evaluate.evaluate_scene(load_scene(folder), methods, args.views, budget=budget)
+        scene = load_scene(folder)
+        rows += evaluate.evaluate_scene(scene, methods, args.views, budget=budget, references=refs)
     return evaluate.write_scores(rows, args.out)
 
 
@@ -388,6 +390,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         help="Gaussian budget: a count (>1) or a fraction (<=1); default: automatic",
+    )
+    eg.add_argument(
+        "--references",
+        nargs="*",
+        default=["flat", "paste", "true-depth"],
+        choices=["flat", "paste", "true-depth"],
+        help="ladder reference rows on the same targets (flat colour, MORI paste, Gaussians "
+        "at the true input depth; default all; none: --references)",
     )
     eg.add_argument("--scenes", type=int, default=None, help="evaluate only the first N scenes")
     eg.add_argument("--no-generator", action="store_true", help="baselines only")

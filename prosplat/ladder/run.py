@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
+from prosplat.camera import Camera
 from prosplat.data.scene import SceneData, resize_views
 from prosplat.evaluate import abs_rel, pick_inputs
 from prosplat.ladder.geometry import resize_depths, valid_mask
@@ -109,6 +110,41 @@ def _timed(fn, *args) -> tuple[object, float]:
     return out, time.perf_counter() - t0
 
 
+def run_rungs(
+    rungs: Sequence[Rung], inputs: SceneInputs, cameras: Sequence[Camera]
+) -> Iterator[tuple[Rung, int, View, float, float]]:
+    """Every rung's view of every target camera: yields (rung, k, view, recon_s, view_s)
+    with ``k`` the camera's index. Each rung reconstructs once (rungs with the same
+    ``shares`` key reuse the first one's reconstruction and report its time).
+
+    The loop every evaluation shares: ``prosplat eval ladder``, ``eval generator``, ``eval
+    improve``, ``bench points`` and the demo all score their reference rows through it.
+    """
+    states: dict[str, tuple[object, float]] = {}
+    for rung in rungs:
+        key = rung.shares or rung.name
+        if key not in states:
+            states[key] = _timed(rung.reconstruct, inputs)
+        state, recon_s = states[key]
+        for k, cam in enumerate(cameras):
+            view, seconds = _timed(rung.view, state, cam, inputs)
+            assert isinstance(view, View), f"ladder rung {rung.name!r} returned {type(view)}"
+            yield rung, k, view, recon_s, seconds
+
+
+def scene_inputs(
+    images: Tensor, cameras: Sequence[Camera], depths: Tensor | None, idx: Sequence[int], near, far
+) -> SceneInputs:
+    """The views ``idx`` of ``images [A,3,H,W]`` / ``depths [A,H,W]`` as rung inputs."""
+    return SceneInputs(
+        images=images[list(idx)],
+        cameras=[cameras[i] for i in idx],
+        depths=None if depths is None else depths[list(idx)],
+        near=float(near),
+        far=float(far),
+    )
+
+
 def evaluate_scene(
     scene: SceneData,
     rungs: Sequence[Rung],
@@ -127,13 +163,7 @@ def evaluate_scene(
     targets = scene.target_indices
     images, cams = resize_views(scene.images, scene.cameras, size)  # [A,3,S,W']
     depths = resize_depths(scene.depths, cams[0].width, cams[0].height)  # [A,S,W']
-    inputs = SceneInputs(
-        images=images[idx],
-        cameras=[cams[i] for i in idx],
-        depths=depths[idx],
-        near=float(scene.near[idx].min()),
-        far=float(scene.far[idx].max()),
-    )
+    inputs = scene_inputs(images, cams, depths, idx, scene.near[idx].min(), scene.far[idx].max())
     masks = {t: valid_mask(cams[t], depths[t], inputs.cameras, inputs.depths) for t in targets}
     overlap = chosen_overlap(scene, idx)
     meta = scene.meta
@@ -147,31 +177,23 @@ def evaluate_scene(
         overlap_bin=overlap_bin(overlap),
         n_targets=len(targets),
     )
-    states: dict[str, tuple[object, float]] = {}
     rows = []
-    for rung in rungs:
-        key = rung.shares or rung.name
-        if key not in states:
-            states[key] = _timed(rung.reconstruct, inputs)
-        state, recon_s = states[key]
-        for t in targets:
-            view, seconds = _timed(rung.view, state, cams[t], inputs)
-            assert isinstance(view, View)
-            s = score_image(
-                view.image, images[t], masks[t], view.depth, view.alpha, depths[t]
-            )  # fmt: skip
-            rows.append(
-                TargetScore(
-                    rung=rung.name,
-                    kind=scene.target_kinds[t] or "target",
-                    target=t,
-                    valid_fraction=float(masks[t].float().mean()),
-                    recon_s=recon_s,
-                    view_ms=seconds * 1e3,
-                    **common,
-                    **s,
-                )
+    cameras = [cams[t] for t in targets]
+    for rung, k, view, recon_s, seconds in run_rungs(rungs, inputs, cameras):
+        t = targets[k]
+        s = score_image(view.image, images[t], masks[t], view.depth, view.alpha, depths[t])
+        rows.append(
+            TargetScore(
+                rung=rung.name,
+                kind=scene.target_kinds[t] or "target",
+                target=t,
+                valid_fraction=float(masks[t].float().mean()),
+                recon_s=recon_s,
+                view_ms=seconds * 1e3,
+                **common,
+                **s,
             )
+        )
     return rows
 
 

@@ -106,8 +106,9 @@ class LadderContext:
         return self._model
 
     def improver(self, rung: str):
-        """The improvement model, or SkipRung naming ``rung`` when none is loaded."""
-        if self.model.improver is None:
+        """The improvement model, or SkipRung naming ``rung`` when none is loaded (or the
+        options say ``improve=False``: then no model is loaded at all)."""
+        if self.options.get("improve") is False or self.model.improver is None:
             raise SkipRung(f"{rung}: no improvement model (pass --improve PATH)")
         return self.model.improver
 
@@ -191,7 +192,12 @@ def splat_view(gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype
     out = render_view(
         gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32
     )
-    return View(out.image, out.depth, out.alpha, info={"reference": out.reference})
+    return View(
+        out.image,
+        out.depth,
+        out.alpha,
+        info={"reference": out.reference, "gaussians": len(gaussians)},
+    )
 
 
 def _dtype(ctx: LadderContext) -> torch.dtype:
