@@ -341,3 +341,23 @@ def test_eval_ladder_bad_options_exit_2(data, tmp_path, capsys, extra, message):
     assert done.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_demo_report_scores_the_same_ladder(data):
+    """The demo's report table comes from the ladder code, with the demo's loaded model."""
+    from types import SimpleNamespace
+
+    from prosplat import ProSplat
+    from prosplat.demo import demo_ladder
+    from prosplat.demo_report import ladder_markdown
+
+    scene = load_scene(data / "tabletop_000001")
+    entries = demo_ladder(ProSplat.from_pretrained(), scene, 64, None)
+    names = ["flat colour", "MORI paste", "generator", "enhanced", "true depth"]
+    assert [e["rung"] for e in entries] == names + ["true depth enhanced"]
+    assert all(e["n"] == 4 and e["psnr_lo"] <= e["psnr"] <= e["psnr_hi"] for e in entries)
+    flat = flat_image(scene.images[scene.input_indices], 64, 64)
+    want = sum(float(psnr(flat, scene.images[t])) for t in scene.target_indices) / 4
+    assert entries[0]["psnr"] == pytest.approx(want, abs=1e-4)
+    table = ladder_markdown(SimpleNamespace(ladder=entries))
+    assert table.count("\n") == 2 + 6 and "| true depth enhanced |" in table
