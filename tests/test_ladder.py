@@ -310,7 +310,16 @@ def test_eval_ladder_end_to_end(data, tmp_path, capsys):
     }
     for e in summary:
         assert e["psnr_lo"] <= e["psnr"] <= e["psnr_hi"]
+    # paired differences against the paste and the upper bound, on the same targets
+    deltas = {(d["rung"], d["anchor"]): d for d in payload["deltas"]}
+    by = {(s["rung"], s["target"]): s for s in scores}
+    d = deltas["generator", "MORI paste"]
+    diffs = [by["generator", t]["psnr"] - by["MORI paste", t]["psnr"] for t in (1, 3, 5, 7)]
+    assert d["n"] == 4 and d["d_psnr"] == pytest.approx(sum(diffs) / 4)
+    assert d["d_psnr_lo"] <= d["d_psnr"] <= d["d_psnr_hi"]
+    assert ("flat colour", "true depth") in deltas and ("MORI paste", "MORI paste") not in deltas
     md = (out / "ladder.md").read_text()
+    assert "#### paired differences" in md
     assert "prosplat eval ladder --data" in md and "#### by input overlap" in md
     assert (out / "ladder.csv").read_text().count("\n") == len(summary) + 1
     # a second run never replaces the first; --overwrite does

@@ -138,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
             for scene in bar:
                 scores += evaluate_scene(scene, rungs, views, size)
     summary = report.summarise(scores, seed=args.seed)
+    deltas = report.paired_deltas(scores, seed=args.seed)
     machine = f"{platform.node()} {platform.machine()} {platform.processor() or ''}".strip()
     meta = dict(
         command=command(args),
@@ -150,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         scenes=[str(f) for f in folders],
         args={k: str(v) for k, v in vars(args).items() if k != "func"},
     )
-    table = report.markdown(summary)
+    table = report.markdown(summary, deltas)
     header = (
         f"# Evaluation ladder\n\n`{command(args)}` at commit "
         f"{meta['commit']} on {machine} (torch {meta['torch']}, {meta['threads']} threads), "
@@ -160,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "ladder.md").write_text(header + table)
     report.write_csv(summary, out / "ladder.csv")
-    report.write_json(scores, summary, meta, out / "ladder.json")
+    report.write_json(scores, summary, meta, out / "ladder.json", deltas)
     report.plot(summary, out / "speed.png", f"evaluation ladder ({machine})")
     print(table)
     print(f"wrote {out / 'ladder.md'}, ladder.csv, ladder.json and speed.png")

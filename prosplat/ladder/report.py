@@ -76,14 +76,67 @@ def _entry(rows, size, views, by, group, rung, seed, n_resamples) -> dict:
     return e
 
 
-def _ci(e: dict, m: str, digits: int) -> str:
+#: the rows every other row is compared with, pairwise on the same targets
+ANCHORS = ("MORI paste", "true depth")
+
+
+def paired_deltas(
+    scores: Sequence[TargetScore], seed: int = 0, n_resamples: int = 1000
+) -> list[dict]:
+    """Per (size, views, rung, anchor): the mean PSNR and LPIPS difference ``rung − anchor``
+    over the targets both scored, with a bootstrapped 95 % interval of the paired
+    differences. Pairing removes the between-target spread that dominates the plain
+    intervals, so "does the enhanced view beat the paste?" gets a sharp answer."""
+    out = []
+    key = lambda s: (s.scene, s.target)  # noqa: E731
+    for size, views in dict.fromkeys((s.size, s.views) for s in scores):
+        here = [s for s in scores if (s.size, s.views) == (size, views)]
+        rungs = list(dict.fromkeys(s.rung for s in here))
+        for anchor in (a for a in ANCHORS if a in rungs):
+            base = {key(s): s for s in here if s.rung == anchor}
+            for rung in (r for r in rungs if r != anchor):
+                pairs = [(s, base[key(s)]) for s in here if s.rung == rung and key(s) in base]
+                e = dict(size=size, views=views, rung=rung, anchor=anchor, n=len(pairs))
+                for m in ("psnr", "lpips", "psnr_valid"):
+                    ci = bootstrap_ci([getattr(a, m) - getattr(b, m) for a, b in pairs],
+                                      seed=seed, n_resamples=n_resamples)  # fmt: skip
+                    e.update({f"d_{m}": ci.mean, f"d_{m}_lo": ci.lo, f"d_{m}_hi": ci.hi})
+                    e[f"d_{m}_n"] = ci.n
+                out.append(e)
+    return out
+
+
+def deltas_markdown(deltas: Sequence[dict], size: int, views: int) -> str:
+    """Each row against the paste and against the upper bound, paired on the same targets."""
+    here = [d for d in deltas if (d["size"], d["views"]) == (size, views)]
+    if not here:
+        return ""
+    anchors = list(dict.fromkeys(d["anchor"] for d in here))
+    rungs = list(dict.fromkeys(d["rung"] for d in here))
+    head = "| row | " + " | ".join(f"Δ PSNR vs {a} | Δ LPIPS vs {a}" for a in anchors) + " |"
+    lines = ["#### paired differences", "", head, "|---|" + "---:|---:|" * len(anchors)]
+    for r in rungs:
+        cells = []
+        for a in anchors:
+            d = next((x for x in here if (x["rung"], x["anchor"]) == (r, a)), None)
+            if d is None:
+                cells += ["–", "–"]
+                continue
+            cells += [_ci(d, "d_psnr", 2, signed=True), _ci(d, "d_lpips", 3, signed=True)]
+        lines.append(f"| {r} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _ci(e: dict, m: str, digits: int, signed: bool = False) -> str:
     if e[f"{m}_n"] == 0:
         return "–"
-    return f"{e[m]:.{digits}f} [{e[f'{m}_lo']:.{digits}f}, {e[f'{m}_hi']:.{digits}f}]"
+    f = f"+.{digits}f" if signed else f".{digits}f"
+    return f"{e[m]:{f}} [{e[f'{m}_lo']:{f}}, {e[f'{m}_hi']:{f}}]"
 
 
-def markdown(summary: Sequence[dict]) -> str:
-    """The full ladder per (size, views) and the grouped tables under it."""
+def markdown(summary: Sequence[dict], deltas: Sequence[dict] = ()) -> str:
+    """The full ladder per (size, views), its paired differences (:func:`paired_deltas`)
+    and the grouped tables under it."""
     parts = []
     for size, views in dict.fromkeys((e["size"], e["views"]) for e in summary):
         here = [e for e in summary if (e["size"], e["views"]) == (size, views)]
@@ -106,12 +159,15 @@ def markdown(summary: Sequence[dict]) -> str:
         valid = statistics.fmean(e["valid_fraction"] for e in overall)
         lines += ["", f"Valid region: {100 * valid:.0f} % of the target pixels on average."]
         parts.append("\n".join(lines))
+        if table := deltas_markdown(deltas, size, views):
+            parts.append(table)
         for by, title in GROUPINGS[1:]:
             parts.append(_grouped(here, by, title))
     notes = (
         "Means over target views with bootstrapped 95 % intervals [lo, hi] (1000 resamples of "
-        "the targets, seeded). *valid*: scored only on the pixels whose surface at least one "
-        "input sees (Blender depth, reprojected, occlusion-tested). Times are medians: recon "
+        "the targets, seeded); paired differences: the same over per-target differences. "
+        "*valid*: scored only on the pixels whose surface at least one input sees (Blender "
+        "depth, reprojected, occlusion-tested). Times are medians: recon "
         "per scene, ms/view per target, amortised = recon / targets + ms/view."
     )
     return "\n\n".join(parts + [notes]) + "\n"
@@ -150,9 +206,17 @@ def write_csv(summary: Sequence[dict], path: Path) -> None:
         writer.writerows(summary)
 
 
-def write_json(scores: Sequence[TargetScore], summary: Sequence[dict], meta: dict, path: Path):
-    """Everything: the run's settings, every per-target score and the summary."""
-    payload = {"meta": meta, "summary": list(summary), "scores": [asdict(s) for s in scores]}
+def write_json(
+    scores: Sequence[TargetScore],
+    summary: Sequence[dict],
+    meta: dict,
+    path: Path,
+    deltas: Sequence[dict] = (),
+) -> None:
+    """Everything: the run's settings, every per-target score, the summary and the paired
+    differences."""
+    payload = {"meta": meta, "summary": list(summary), "deltas": list(deltas)}
+    payload["scores"] = [asdict(s) for s in scores]
     path.write_text(json.dumps(payload, indent=1, default=str) + "\n")
 
 
