@@ -189,12 +189,22 @@ def test_true_depth_sky_pixels_go_far_behind_or_are_skipped():
     cams = orbit_cameras(2, 16, 16)
     images, depths = _analytic_views(cams)
     depths[:, :4] = 0  # the top rows are sky
-    skipped = true_depth_gaussians(images, depths, cams, sky=False)
-    assert len(skipped) == 2 * 12 * 16
-    with_sky = true_depth_gaussians(images, depths, cams)
-    assert len(with_sky) == 2 * 16 * 16
-    z = cams[0].world_to_camera(with_sky.means[:16].double())[:, 2]  # first row of view 0
+    surface = true_depth_gaussians(images, depths, cams, part="surface")
+    sky = true_depth_gaussians(images, depths, cams, part="sky")
+    everything = true_depth_gaussians(images, depths, cams)
+    assert (len(surface), len(sky), len(everything)) == (2 * 12 * 16, 2 * 4 * 16, 2 * 16 * 16)
+    z = cams[0].world_to_camera(sky.means[:16].double())[:, 2]  # first row of view 0
     assert torch.allclose(z, torch.tensor(20.0 * float(depths.max()), dtype=z.dtype), rtol=1e-4)
+    with pytest.raises(ValueError, match="part must be"):
+        true_depth_gaussians(images, depths, cams, part="clouds")
+    # the rung renders the sky behind the surfaces but scores the surfaces' depth only
+    rung = build_rungs(["true-depth"], LadderContext({"improve": False}))[0]
+    inputs = SceneInputs(images, cams, depths, 0.5, 10.0)
+    view = rung.view(rung.reconstruct(inputs), cams[0], inputs)
+    assert float(psnr(view.image.clamp(0, 1), images[0])) > 15.0  # the sky rows are drawn
+    assert float(view.depth[:4].max()) < float(depths.max())  # no 20x-far depth leaks in
+    whole = render(everything, cams[0])
+    torch.testing.assert_close(view.image, whole.rgb, atol=0.05, rtol=0)
 
 
 def _wall_camera(x: float, size: int = 32) -> Camera:

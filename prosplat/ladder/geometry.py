@@ -54,7 +54,7 @@ def resize_depths(depths: Tensor, width: int, height: int) -> Tensor:
 
 
 def true_depth_gaussians(
-    images: Tensor, depths: Tensor, cameras: Sequence[Camera], sky: bool = True
+    images: Tensor, depths: Tensor, cameras: Sequence[Camera], part: str = "all"
 ) -> Gaussians:
     """One Gaussian per input pixel, at the pixel's true surface point.
 
@@ -62,12 +62,12 @@ def true_depth_gaussians(
         images: [V,3,H,W] input images in [0, 1].
         depths: [V,H,W] their z-depths along the optical axis (0 = no surface: sky).
         cameras: V cameras of size W x H.
-        sky: place sky pixels at ``SKY_DEPTH_FACTOR`` x the farthest input depth (True) or
-            skip them (False).
+        part: "all" (every pixel; sky pixels at ``SKY_DEPTH_FACTOR`` x the farthest input
+            depth), "surface" (pixels with depth only) or "sky" (the sky pixels only).
     Returns:
         Gaussians (float32, SH degree 0): means [N,3] on the surfaces, colour = the pixel's,
         isotropic scale ``FOOTPRINT_SIGMA * depth / fx``, opacity ``TRUE_DEPTH_OPACITY``;
-        N = the number of pixels with depth > 0 (all pixels with ``sky``).
+        N = the number of pixels in ``part``.
     """
     if images.ndim != 4 or depths.shape != (images.shape[0], *images.shape[-2:]):
         raise ValueError(
@@ -76,12 +76,16 @@ def true_depth_gaussians(
         )
     if len(cameras) != images.shape[0]:
         raise ValueError(f"true_depth_gaussians: {len(cameras)} cameras for {len(images)} images")
+    if part not in ("all", "surface", "sky"):
+        raise ValueError(f"true_depth_gaussians: part must be all, surface or sky, got {part!r}")
     means, colors, scales = [], [], []
     surface = depths[depths > 0]
-    sky_depth = SKY_DEPTH_FACTOR * float(surface.max()) if surface.numel() else 0.0
+    sky_depth = SKY_DEPTH_FACTOR * float(surface.max()) if surface.numel() else 1.0
     for image, depth, cam in zip(images, depths, cameras):
         d = depth.to(torch.float64)
-        if sky and sky_depth > 0:
+        if part == "sky":
+            d = torch.where(d > 0, torch.zeros_like(d), torch.full_like(d, sky_depth))
+        elif part == "all":
             d = torch.where(d > 0, d, torch.full_like(d, sky_depth))
         ok = d > 0  # [H,W]
         uv = cam.to(dtype=torch.float64).pixel_centers(torch.float64)[ok]  # [P,2]

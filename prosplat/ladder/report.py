@@ -146,14 +146,15 @@ def markdown(summary: Sequence[dict], deltas: Sequence[dict] = ()) -> str:
             f"### {size} px, {views} input views ({scenes} scenes, {n} targets)",
             "",
             "| row | PSNR ↑ | SSIM ↑ | LPIPS ↓ | depth AbsRel ↓ | PSNR valid ↑ | SSIM valid ↑ "
-            "| LPIPS valid ↓ | recon s | ms/view | amortised ms/view |",
-            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+            "| LPIPS valid ↓ | AbsRel valid ↓ | recon s | ms/view | amortised ms/view |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for e in overall:
             lines.append(
                 f"| {e['rung']} | {_ci(e, 'psnr', 2)} | {_ci(e, 'ssim', 3)} | "
                 f"{_ci(e, 'lpips', 3)} | {_ci(e, 'abs_rel', 3)} | {_ci(e, 'psnr_valid', 2)} | "
-                f"{_ci(e, 'ssim_valid', 3)} | {_ci(e, 'lpips_valid', 3)} | {e['recon_s']:.2f} | "
+                f"{_ci(e, 'ssim_valid', 3)} | {_ci(e, 'lpips_valid', 3)} | "
+                f"{_ci(e, 'abs_rel_valid', 3)} | {e['recon_s']:.2f} | "
                 f"{e['view_ms']:.1f} | {e['amortised_ms']:.1f} |"
             )
         valid = statistics.fmean(e["valid_fraction"] for e in overall)

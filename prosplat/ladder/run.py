@@ -47,13 +47,14 @@ class TargetScore:
     psnr_valid: float
     ssim_valid: float
     lpips_valid: float
+    abs_rel_valid: float
     recon_s: float  # the rung's reconstruction of this scene (shared rungs: the same value)
     view_ms: float
     n_targets: int  # targets of the scene (amortised time = recon / n_targets + view)
 
 
 METRICS = ("psnr", "ssim", "lpips", "abs_rel")
-VALID_METRICS = ("psnr_valid", "ssim_valid", "lpips_valid")
+VALID_METRICS = ("psnr_valid", "ssim_valid", "lpips_valid", "abs_rel_valid")
 
 
 def chosen_overlap(scene: SceneData, idx: Sequence[int]) -> float:
@@ -92,6 +93,11 @@ def score_image(
         else math.nan
     )
     if mask is not None:
+        out["abs_rel_valid"] = (
+            abs_rel(depth, torch.where(mask, gt_depth, torch.zeros_like(gt_depth)), alpha)
+            if depth is not None and gt_depth is not None and alpha is not None
+            else math.nan
+        )
         for name, fn in (("psnr", psnr), ("ssim", ssim), ("lpips", lpips)):
             if name == "lpips" and not big:
                 out["lpips_valid"] = math.nan
