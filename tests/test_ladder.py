@@ -380,3 +380,14 @@ def test_demo_report_scores_the_same_ladder(data):
     assert entries[0]["psnr"] == pytest.approx(want, abs=1e-4)
     table = ladder_markdown(SimpleNamespace(ladder=entries))
     assert table.count("\n") == 2 + 6 and "| true depth enhanced |" in table
+
+
+def test_find_scenes_skips_half_rendered_folders(data, tmp_path):
+    from prosplat.data import find_scenes
+
+    partial = tmp_path / ".open_000002.partial-123"
+    partial.mkdir()
+    (partial / "transforms.json").write_text("{}")
+    (tmp_path / "room_000003").mkdir()
+    (tmp_path / "room_000003" / "transforms.json").write_text("{}")
+    assert [p.name for p in find_scenes(tmp_path)] == ["room_000003"]
