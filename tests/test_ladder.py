@@ -339,8 +339,12 @@ def test_eval_ladder_end_to_end(data, tmp_path, capsys):
     assert (tmp_path / "ladder-2" / "ladder.md").is_file()
     assert (out / "ladder.json").stat().st_mtime_ns == before
     with pytest.raises(SystemExit):
-        main(argv + [str(out), "--rows", "flat", "--overwrite"])
-    assert json.loads((out / "ladder.json").read_text())["meta"]["rows"] == ["flat colour"]
+        main(argv + [str(out), "--rows", "flat", "--overwrite", "--resample", "scenes"])
+    again = json.loads((out / "ladder.json").read_text())
+    assert again["meta"]["rows"] == ["flat colour"]
+    # one scene: resampling whole scenes can only redraw it, so every interval is a point
+    assert all(e["psnr_lo"] == e["psnr_hi"] == pytest.approx(e["psnr"]) for e in again["summary"])
+    assert "--resample scenes" in again["meta"]["command"]
 
 
 @pytest.mark.parametrize(
@@ -382,7 +386,7 @@ def test_demo_report_scores_the_same_ladder(data):
     assert table.count("\n") == 2 + 6 and "| true depth enhanced |" in table
 
 
-def test_find_scenes_skips_half_rendered_folders(data, tmp_path):
+def test_find_scenes_skips_half_rendered_folders(tmp_path):
     from prosplat.data import find_scenes
 
     partial = tmp_path / ".open_000002.partial-123"

@@ -40,6 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bf16", action="store_true", help="stage 2 under bfloat16 autocast")
     parser.add_argument("--scenes", type=int, default=None, help="at most N scenes per folder")
     parser.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
+    parser.add_argument("--resample", choices=["targets", "scenes"], default="targets",
+                        help="what the bootstrap draws: targets (default) or whole scenes")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("out/ladder"), help="output folder")
     parser.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
 
@@ -81,6 +83,8 @@ def command(args: argparse.Namespace) -> str:
             parts += [f"--{flag}", str(getattr(args, flag))]
     if args.bf16:
         parts.append("--bf16")
+    if args.resample != "targets":
+        parts += ["--resample", args.resample]
     return " ".join(parts + ["--out", str(args.out)])
 
 
@@ -137,8 +141,9 @@ def run(args: argparse.Namespace) -> int:
             bar = tqdm(scenes, desc=f"ladder {size} px, {views} views", unit="scene")
             for scene in bar:
                 scores += evaluate_scene(scene, rungs, views, size)
-    summary = report.summarise(scores, seed=args.seed)
-    deltas = report.paired_deltas(scores, seed=args.seed)
+    by_scene = args.resample == "scenes"
+    summary = report.summarise(scores, seed=args.seed, by_scene=by_scene)
+    deltas = report.paired_deltas(scores, seed=args.seed, by_scene=by_scene)
     machine = f"{platform.node()} {platform.machine()} {platform.processor() or ''}".strip()
     meta = dict(
         command=command(args),
@@ -151,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         scenes=[str(f) for f in folders],
         args={k: str(v) for k, v in vars(args).items() if k != "func"},
     )
-    table = report.markdown(summary, deltas)
+    table = report.markdown(summary, deltas, by_scene)
     header = (
         f"# Evaluation ladder\n\n`{command(args)}` at commit "
         f"{meta['commit']} on {machine} (torch {meta['torch']}, {meta['threads']} threads), "

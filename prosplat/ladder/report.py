@@ -31,10 +31,13 @@ GROUPINGS = (
 ALL_METRICS = METRICS + VALID_METRICS
 
 
-def summarise(scores: Sequence[TargetScore], seed: int = 0, n_resamples: int = 1000) -> list[dict]:
+def summarise(
+    scores: Sequence[TargetScore], seed: int = 0, n_resamples: int = 1000, by_scene: bool = False
+) -> list[dict]:
     """One entry per (size, views, grouping, group, rung) in ladder order: ``n``, per metric
     ``{metric}``, ``{metric}_lo``, ``{metric}_hi`` (mean and 95 % interval), and the median
-    ``recon_s``, ``view_ms``, ``amortised_ms``."""
+    ``recon_s``, ``view_ms``, ``amortised_ms``. ``by_scene`` resamples whole scenes instead of
+    targets (wider, honest intervals when a scene's targets move together)."""
     rung_order = list(dict.fromkeys(s.rung for s in scores))
     out = []
     for size, views in dict.fromkeys((s.size, s.views) for s in scores):
@@ -45,7 +48,9 @@ def summarise(scores: Sequence[TargetScore], seed: int = 0, n_resamples: int = 1
                 for rung in rung_order:
                     rows = [s for s in sub if s.rung == rung]
                     if rows:
-                        out.append(_entry(rows, size, views, by, group, rung, seed, n_resamples))
+                        out.append(
+                            _entry(rows, size, views, by, group, rung, seed, n_resamples, by_scene)
+                        )
     return out
 
 
@@ -62,11 +67,13 @@ def _groups(scores: Sequence[TargetScore], by: str) -> list[str]:
     return sorted(present)
 
 
-def _entry(rows, size, views, by, group, rung, seed, n_resamples) -> dict:
+def _entry(rows, size, views, by, group, rung, seed, n_resamples, by_scene) -> dict:
     e = dict(size=size, views=views, grouping=by, group=group, rung=rung, n=len(rows))
     e["scenes"] = len({r.scene for r in rows})
+    clusters = [r.scene for r in rows] if by_scene else None
     for m in ALL_METRICS:
-        ci = bootstrap_ci([getattr(r, m) for r in rows], seed=seed, n_resamples=n_resamples)
+        values = [getattr(r, m) for r in rows]
+        ci = bootstrap_ci(values, seed=seed, n_resamples=n_resamples, clusters=clusters)
         e.update({m: ci.mean, f"{m}_lo": ci.lo, f"{m}_hi": ci.hi, f"{m}_n": ci.n})
     recon = {r.scene: r.recon_s for r in rows}
     e["recon_s"] = statistics.median(recon.values())
@@ -81,7 +88,7 @@ ANCHORS = ("MORI paste", "true depth")
 
 
 def paired_deltas(
-    scores: Sequence[TargetScore], seed: int = 0, n_resamples: int = 1000
+    scores: Sequence[TargetScore], seed: int = 0, n_resamples: int = 1000, by_scene: bool = False
 ) -> list[dict]:
     """Per (size, views, rung, anchor): the mean PSNR and LPIPS difference ``rung − anchor``
     over the targets both scored, with a bootstrapped 95 % interval of the paired
@@ -97,9 +104,10 @@ def paired_deltas(
             for rung in (r for r in rungs if r != anchor):
                 pairs = [(s, base[key(s)]) for s in here if s.rung == rung and key(s) in base]
                 e = dict(size=size, views=views, rung=rung, anchor=anchor, n=len(pairs))
+                clusters = [a.scene for a, _ in pairs] if by_scene else None
                 for m in ("psnr", "lpips", "psnr_valid"):
-                    ci = bootstrap_ci([getattr(a, m) - getattr(b, m) for a, b in pairs],
-                                      seed=seed, n_resamples=n_resamples)  # fmt: skip
+                    diffs = [getattr(a, m) - getattr(b, m) for a, b in pairs]
+                    ci = bootstrap_ci(diffs, seed=seed, n_resamples=n_resamples, clusters=clusters)
                     e.update({f"d_{m}": ci.mean, f"d_{m}_lo": ci.lo, f"d_{m}_hi": ci.hi})
                     e[f"d_{m}_n"] = ci.n
                 out.append(e)
@@ -134,7 +142,7 @@ def _ci(e: dict, m: str, digits: int, signed: bool = False) -> str:
     return f"{e[m]:{f}} [{e[f'{m}_lo']:{f}}, {e[f'{m}_hi']:{f}}]"
 
 
-def markdown(summary: Sequence[dict], deltas: Sequence[dict] = ()) -> str:
+def markdown(summary: Sequence[dict], deltas: Sequence[dict] = (), by_scene: bool = False) -> str:
     """The full ladder per (size, views), its paired differences (:func:`paired_deltas`)
     and the grouped tables under it."""
     parts = []
@@ -165,8 +173,9 @@ def markdown(summary: Sequence[dict], deltas: Sequence[dict] = ()) -> str:
         for by, title in GROUPINGS[1:]:
             parts.append(_grouped(here, by, title))
     notes = (
-        "Means over target views with bootstrapped 95 % intervals [lo, hi] (1000 resamples of "
-        "the targets, seeded); paired differences: the same over per-target differences. "
+        "Means over target views with bootstrapped 95 % intervals [lo, hi] (1000 seeded "
+        f"resamples of the {'scenes (all targets of a drawn scene)' if by_scene else 'targets'}); "
+        "paired differences: the same over per-target differences. "
         "*valid*: scored only on the pixels whose surface at least one input sees (Blender "
         "depth, reprojected, occlusion-tested). Times are medians: recon "
         "per scene, ms/view per target, amortised = recon / targets + ms/view."
