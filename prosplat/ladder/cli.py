@@ -69,6 +69,24 @@ def _commit() -> str:
         return "unknown"
 
 
+def _machine() -> str:
+    """The CPU's model name and core count (and the GPU when one is used), for the report."""
+    import os
+
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    gpu = f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ", no GPU"
+    return f"{cpu}, {os.cpu_count()} cores{gpu}"
+
+
 def command(args: argparse.Namespace) -> str:
     """The command line that reproduces this run (from the parsed options, not sys.argv, so
     it is right when called from Python too)."""
@@ -134,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as e:
         return fail(str(e))
     started = time.perf_counter()
+    commit = _commit()  # the code that runs, taken before a long run (the tree may move on)
     scores = []
     for size in args.sizes:
         for views in args.views:
@@ -144,10 +163,10 @@ def run(args: argparse.Namespace) -> int:
     by_scene = args.resample == "scenes"
     summary = report.summarise(scores, seed=args.seed, by_scene=by_scene)
     deltas = report.paired_deltas(scores, seed=args.seed, by_scene=by_scene)
-    machine = f"{platform.node()} {platform.machine()} {platform.processor() or ''}".strip()
+    machine = _machine()
     meta = dict(
         command=command(args),
-        commit=_commit(),
+        commit=commit,
         machine=machine,
         torch=torch.__version__,
         threads=torch.get_num_threads(),
