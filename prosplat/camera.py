@@ -4,7 +4,9 @@ A :class:`Camera` is a pinhole with OpenCV axes (x right, y down, z forward), in
 in pixels and a 4x4 world-to-camera matrix. Pixel (col, row) has its centre at
 (col + 0.5, row + 0.5), so a centred principal point is (W/2, H/2), which is how Blender
 renders. Conversions from Blender, nerfstudio/instant-ngp ``transforms.json`` and COLMAP live
-in :mod:`prosplat.convert`; everything downstream only ever sees this class.
+in :mod:`prosplat.convert` (``camera_from_blender`` / ``blender_from_camera``); everything
+downstream only ever sees this class. This module imports nothing else of ProSplat, so the
+converters can import it without a cycle.
 """
 
 from __future__ import annotations
@@ -121,40 +123,6 @@ class Camera:
         return cls.from_intrinsics(
             fx, fy if fy is not None else fx, width / 2, height / 2, width, height, w2c
         )
-
-    @classmethod
-    def from_blender(
-        cls,
-        matrix_world: Tensor,
-        lens: float,
-        sensor_width: float,
-        sensor_height: float,
-        sensor_fit: str,
-        shift_x: float,
-        shift_y: float,
-        width: int,
-        height: int,
-    ) -> Camera:
-        """A camera from Blender camera data (pure math, no bpy); see :mod:`prosplat.convert.blender`."""
-        from prosplat.convert.blender import camera_from_blender
-
-        return camera_from_blender(
-            matrix_world,
-            lens,
-            sensor_width,
-            sensor_height,
-            sensor_fit,
-            shift_x,
-            shift_y,
-            width,
-            height,
-        )
-
-    def to_blender(self, sensor_width: float = 36.0):
-        """The Blender camera settings that reproduce this camera; see :mod:`prosplat.convert.blender`."""
-        from prosplat.convert.blender import blender_from_camera
-
-        return blender_from_camera(self, sensor_width=sensor_width)
 
     # ---- properties ---------------------------------------------------------------------
     @property

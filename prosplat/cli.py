@@ -7,18 +7,11 @@ import os
 import sys
 from pathlib import Path
 
+from prosplat.paths import fresh_folder
 
-def _fresh_folder(path: Path, overwrite: bool) -> Path:
-    """``path`` if it is new, empty, or ``overwrite``; otherwise the first free ``path-N``.
-
-    Earlier results are never clobbered by a re-run unless the user asks.
-    """
-    if overwrite or not path.exists() or not any(path.iterdir()):
-        return path
-    k = 2
-    while (candidate := path.with_name(f"{path.name}-{k}")).exists() and any(candidate.iterdir()):
-        k += 1
-    return candidate
+# Moved to prosplat.paths (bench/, demo and the ladder import it from there, not from the CLI
+# that imports them); the old name stays for code written against it.
+_fresh_folder = fresh_folder
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -216,33 +209,17 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     if "optimize" in args.baselines:
         for steps in args.opt_steps:
             methods[f"3DGS opt {steps}"] = evaluate.optimize_method(steps)
-    if not methods:
+    refs = args.references
+    if not methods and not refs:
         print("prosplat eval generator: nothing to evaluate", file=sys.stderr)
         return 2
     folders = find_scenes(args.data)[: args.scenes]
     rows = []
     for folder in tqdm(folders, desc="evaluating scenes", unit="scene"):
         budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
-        rows += evaluate.evaluate_scene(load_scene(folder), methods, args.views, budget=budget)
-    return write_scores(rows, args.out)
-
-
-def write_scores(rows: list, out: Path) -> int:
-    """Print the summary table of ``rows`` (evaluate.Score) and write ``summary.md`` and
-    ``scores.json`` into a fresh folder at ``out`` (never over an earlier evaluation)."""
-    import json
-    from dataclasses import asdict
-
-    from prosplat import evaluate
-
-    table = evaluate.markdown_table(evaluate.summarise(rows))
-    print(table)
-    out = _fresh_folder(out, overwrite=False)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
-    (out / "summary.md").write_text(table + "\n")
-    print(f"wrote {out / 'summary.md'} and scores.json")
-    return 0
+        scene = load_scene(folder)
+        rows += evaluate.evaluate_scene(scene, methods, args.views, budget=budget, references=refs)
+    return evaluate.write_scores(rows, args.out)
 
 
 def add_bench_parsers(sub) -> None:
@@ -496,12 +473,31 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="Gaussian budget: a count (>1) or a fraction (<=1); default: automatic",
     )
+    eg.add_argument(
+        "--references",
+        nargs="*",
+        default=["flat", "paste", "true-depth"],
+        choices=["flat", "paste", "true-depth"],
+        help="ladder reference rows on the same targets (flat colour, MORI paste, Gaussians "
+        "at the true input depth; default all; none: --references)",
+    )
     eg.add_argument("--scenes", type=int, default=None, help="evaluate only the first N scenes")
     eg.add_argument("--no-generator", action="store_true", help="baselines only")
     eg.add_argument("--out", type=Path, default=Path("out/eval"), help="where scores go")
     eg.set_defaults(func=cmd_eval_generator)
     add_eval_parser(ev_sub)
     add_posed_parsers(sub, ev_sub)
+    from prosplat.ladder import cli as ladder_cli
+
+    el = ev_sub.add_parser(
+        "ladder",
+        help="every ladder row (flat, paste, optimisation, generator, enhanced, true depth) "
+        "with intervals, per family / overlap bin / target kind",
+        description=ladder_cli.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ladder_cli.add_arguments(el)
+    el.set_defaults(func=ladder_cli.run)
     return parser
 
 

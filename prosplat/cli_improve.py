@@ -64,8 +64,8 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from prosplat.cli import write_scores
     from prosplat.data import find_scenes, load_scene
+    from prosplat.evaluate import write_scores
     from prosplat.evaluate_improve import Row, evaluate_rows
     from prosplat.improve.io import load_improver
     from prosplat.pipeline import ProSplat
@@ -92,7 +92,10 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
     dtype = torch.bfloat16 if args.bf16 else torch.float32
     scores = []
     for folder in tqdm(find_scenes(args.data)[: args.scenes], desc="ablation", unit="scene"):
-        scores += evaluate_rows(load_scene(folder, load_depth=False), rows, args.views, dtype)
+        # depth maps only for the true-depth row; scenes without them skip that row
+        depth = "true-depth" in args.references and (folder / "depth").is_dir()
+        scene = load_scene(folder, load_depth=depth)
+        scores += evaluate_rows(scene, rows, args.views, dtype, args.references)
     return write_scores(scores, args.out)
 
 
@@ -154,6 +157,13 @@ def add_eval_parser(ev_sub) -> None:
     ei.add_argument("--generator", default=None, help="generator checkpoint (default: shipped)")
     ei.add_argument("--row", action="append", default=[], help="LABEL=PATH[:paper|overlap]")
     ei.add_argument("--views", type=int, nargs="+", default=[2, 4, 6], help="input-view counts")
+    ei.add_argument(
+        "--references",
+        nargs="*",
+        default=["flat", "paste", "true-depth"],
+        choices=["flat", "paste", "true-depth"],
+        help="ladder reference rows on the same targets (default all; none: --references)",
+    )
     ei.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
     ei.add_argument("--bf16", action="store_true", help="run stage 2 under bfloat16 autocast")
     ei.add_argument("--out", type=Path, default=Path("out/eval-improve"), help="where scores go")

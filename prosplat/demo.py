@@ -108,6 +108,22 @@ class DemoResult:
     gaussians: dict[str, int]  # budget stats (input, kept, ...)
     blender_view_s: float  # Cycles seconds per rendered view (median)
     settings: dict
+    ladder: list[dict] = field(default_factory=list)  # prosplat.ladder.report.summarise
+
+
+def demo_ladder(model, scene: SceneData, size: int, budget) -> list[dict]:
+    """The evaluation ladder on the demo scene (every input, the demo's size and budget): flat
+    colour, MORI paste, generator, enhanced, true depth raw and enhanced, with intervals over
+    the targets. The same code as ``prosplat eval ladder``, with the demo's loaded model."""
+    from prosplat.ladder import report
+    from prosplat.ladder.run import evaluate_scene
+    from prosplat.ladder.rungs import LadderContext, build_rungs
+
+    names = ["flat", "paste", "generator", "enhanced", "true-depth"]
+    ctx = LadderContext({"budget": budget}, _model=model)
+    rungs = build_rungs(names, ctx, log=lambda m: print(f"prosplat demo: {m}"))
+    scores = evaluate_scene(scene, rungs, len(scene.input_indices), size)
+    return [e for e in report.summarise(scores) if e["grouping"] == "all"]
 
 
 def render_scene_with_blender(cfg: DemoConfig, dest: Path, blend: Path) -> Path:
@@ -164,15 +180,15 @@ def downsample(scene: SceneData, size: int) -> tuple[Tensor, list[Camera]]:
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Run the whole demo into a fresh folder (see the module docstring); returns the numbers."""
     from prosplat.budget import prune_pixel_aligned
-    from prosplat.cli import _fresh_folder
     from prosplat.demo_report import write_report
     from prosplat.metrics import lpips, psnr, ssim
+    from prosplat.paths import fresh_folder
     from prosplat.pipeline import ProSplat
     from prosplat.ply import write_ply
 
     cfg.check()
     t_start = time.perf_counter()
-    out = _fresh_folder(cfg.out, cfg.overwrite)
+    out = fresh_folder(cfg.out, cfg.overwrite)
     if cfg.overwrite:
         _remove_earlier_demo(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -254,6 +270,8 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         blender_view_s=float(torch.tensor(view_seconds).median()),
         settings=settings,
     )
+    print("scoring the evaluation ladder (flat, paste, generator, enhanced, true depth)")
+    result.ladder = demo_ladder(model, scene, cfg.size, budget)
     result.timings["total"] = time.perf_counter() - t_start
     write_report(result)
     result.timings["total"] = time.perf_counter() - t_start

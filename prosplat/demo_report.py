@@ -133,6 +133,29 @@ def metrics_markdown(result: DemoResult) -> str:
     return "\n".join(lines) + "\n"
 
 
+def ladder_markdown(result: DemoResult) -> str:
+    """The demo's views on the evaluation ladder: each row's mean over the targets with a
+    bootstrapped 95 % interval, whole image and valid region (pixels some input sees)."""
+    if not result.ladder:
+        return ""
+
+    def ci(e: dict, m: str, d: int) -> str:
+        if e[f"{m}_n"] == 0:
+            return "–"
+        return f"{e[m]:.{d}f} [{e[f'{m}_lo']:.{d}f}, {e[f'{m}_hi']:.{d}f}]"
+
+    lines = [
+        "| row | PSNR ↑ | SSIM ↑ | LPIPS ↓ | PSNR valid ↑ | LPIPS valid ↓ | ms/view |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for e in result.ladder:
+        lines.append(
+            f"| {e['rung']} | {ci(e, 'psnr', 2)} | {ci(e, 'ssim', 3)} | {ci(e, 'lpips', 3)} | "
+            f"{ci(e, 'psnr_valid', 2)} | {ci(e, 'lpips_valid', 3)} | {e['view_ms']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def plot(result: DemoResult, path: Path) -> None:
     """Left: PSNR per view, generator vs enhanced. Right: ms per view against PSNR, with the
     time Cycles took for each exact image (the cost of the ground truth) for scale."""
@@ -179,6 +202,7 @@ def _write_tables(result: DemoResult) -> None:
         "blender_view_s": result.blender_view_s,
         "gaussians": result.gaussians,
         "summary": summary_rows(result.views),
+        "ladder": result.ladder,
         "views": [{k: getattr(v, k) for k in fields} for v in result.views],
     }
     (out / "metrics.json").write_text(json.dumps(payload, indent=2) + "\n")
@@ -215,6 +239,15 @@ LPIPS {total["lpips_raw"]:.3f} → {total["lpips_enhanced"]:.3f}.
 {metrics_markdown(result)}
 ![plot](plot.png)
 
+## Against the ladder
+
+A number means something only beside what is trivial and what is possible: a flat image of
+the inputs' mean colour, the input MORI picks pasted as it is, and the upper bound, Gaussians
+at Blender's true input depth (raw and enhanced). Means over the {len(result.views)} targets
+with bootstrapped 95 % intervals; *valid*: only the pixels some input sees
+(`prosplat eval ladder` runs the same rows on a test set).
+
+{ladder_markdown(result)}
 ## Time
 
 | step | seconds |

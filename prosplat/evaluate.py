@@ -5,14 +5,21 @@ reconstructed once (timed), pruned to the Gaussian budget, and every target view
 rendered (timed) and scored: PSNR / SSIM / LPIPS against Blender's image and depth AbsRel
 against Blender's Z pass. Rows are grouped by method, view count and target kind
 (interpolation / extrapolation), so speed can be read against error.
+
+Beside the methods, the ladder's reference rows (:mod:`prosplat.ladder`) score the same
+targets: a flat image of the inputs' mean colour, the input MORI picks pasted, and Gaussians
+at Blender's true input depth (the upper bound). Means carry bootstrapped 95 % intervals.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -22,6 +29,7 @@ from prosplat.camera import Camera
 from prosplat.data.rigs import farthest_point_sampling
 from prosplat.data.scene import SceneData
 from prosplat.gaussians import Gaussians
+from prosplat.paths import fresh_folder
 from prosplat.render import render
 
 # A method maps (images [V,3,H,W], cameras, near, far) to (Gaussians, per-view depths [V,H,W]).
@@ -136,12 +144,16 @@ def evaluate_scene(
     methods: dict[str, Method],
     views: list[int],
     budget: int | float | None = None,
+    references: tuple[str, ...] | list[str] = (),
 ) -> list[Score]:
-    """Score every method on one scene for each input-view count."""
+    """Score every method on one scene for each input-view count, and the ladder's
+    ``references`` rows (names from :data:`REFERENCE_ROWS`) on the same targets."""
     rows = []
     name = scene.folder.name if scene.folder else "scene"
     for n in views:
         idx = pick_inputs(scene, n)
+        if references:
+            rows += reference_scores(scene, idx, references)
         images = scene.images[idx]
         cams = [scene.cameras[i] for i in idx]
         near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
@@ -177,8 +189,66 @@ def evaluate_scene(
     return rows
 
 
-def summarise(rows: list[Score]) -> list[dict]:
-    """Mean scores and median times per (method, views, kind)."""
+#: the ladder rows ``prosplat eval generator`` / ``eval improve`` add beside their methods
+REFERENCE_ROWS = ("flat", "paste", "true-depth")
+
+
+def reference_scores(
+    scene: SceneData,
+    idx: list[int],
+    names: tuple[str, ...] | list[str] = REFERENCE_ROWS,
+    images: Tensor | None = None,
+    cameras: list[Camera] | None = None,
+) -> list[Score]:
+    """The ladder's model-free reference rows (flat colour, MORI paste, true depth) on the
+    targets of ``scene`` from the inputs ``idx``, as :class:`Score` rows beside the methods'.
+
+    ``images``/``cameras`` (all views) default to the scene's own; pass resized ones to score
+    at another size. "true-depth" is left out when the scene has no depth maps.
+    """
+    from prosplat.ladder.geometry import resize_depths
+    from prosplat.ladder.run import run_rungs, scene_inputs
+    from prosplat.ladder.rungs import LadderContext, build_rungs
+
+    images = scene.images if images is None else images
+    cameras = scene.cameras if cameras is None else cameras
+    depths = scene.depths
+    if depths is None:
+        names = [n for n in names if n != "true-depth"]
+    else:
+        depths = resize_depths(depths, cameras[0].width, cameras[0].height)
+    rungs = build_rungs(list(names), LadderContext({"improve": False}), log=lambda _: None)
+    near, far = scene.near[idx].min(), scene.far[idx].max()
+    inputs = scene_inputs(images, cameras, depths, idx, near, far)
+    targets = scene.target_indices
+    name = scene.folder.name if scene.folder else "scene"
+    rows = []
+    for rung, k, view, recon_s, seconds in run_rungs(rungs, inputs, [cameras[t] for t in targets]):
+        t = targets[k]
+        rows.append(
+            score_view(
+                rung.name,
+                len(idx),
+                scene.target_kinds[t],
+                name,
+                view.image,
+                images[t],
+                recon_s,
+                seconds * 1e3,
+                view.info.get("gaussians", 0),
+                view.depth,
+                view.alpha,
+                None if depths is None else depths[t],
+            )  # fmt: skip
+        )
+    return rows
+
+
+def summarise(rows: list[Score], seed: int = 0) -> list[dict]:
+    """Mean scores (with bootstrapped 95 % intervals over targets: ``psnr_lo``/``psnr_hi``,
+    likewise for ssim and lpips) and median times per (method, views, kind)."""
+    from prosplat.ladder.stats import bootstrap_ci
+
     keys = sorted({(r.method, r.views, r.kind) for r in rows}, key=lambda k: (k[1], k[2], k[0]))
     out = []
     for method, views, kind in keys:
@@ -189,8 +259,13 @@ def summarise(rows: list[Score]) -> list[dict]:
             return sum(vals) / len(vals) if vals else float("nan")
 
         recon_per_scene = {r.scene: r.recon_s for r in sub}
+        intervals = {}
+        for m in ("psnr", "ssim", "lpips"):
+            ci = bootstrap_ci([getattr(r, m) for r in sub], seed=seed)
+            intervals |= {f"{m}_lo": ci.lo, f"{m}_hi": ci.hi}
         out.append(
-            dict(
+            intervals
+            | dict(
                 method=method,
                 views=views,
                 kind=kind,
@@ -207,16 +282,38 @@ def summarise(rows: list[Score]) -> list[dict]:
     return out
 
 
+def _with_ci(s: dict, m: str, digits: int) -> str:
+    """``mean [lo, hi]``, or the bare mean when there is no interval (no finite values)."""
+    if math.isnan(s.get(f"{m}_lo", math.nan)):
+        return f"{s[m]:.{digits}f}"
+    return f"{s[m]:.{digits}f} [{s[f'{m}_lo']:.{digits}f}, {s[f'{m}_hi']:.{digits}f}]"
+
+
 def markdown_table(summary: list[dict]) -> str:
+    """One line per (views, kind, method); PSNR / SSIM / LPIPS as mean [95 % interval]."""
     lines = [
-        "| views | targets | method | n | PSNR ↑ | SSIM ↑ | LPIPS ↓ | depth AbsRel ↓ | recon s "
-        "| render ms/view | Gaussians |",
+        "| views | targets | method | n | PSNR ↑ [95 % CI] | SSIM ↑ | LPIPS ↓ | depth AbsRel ↓ "
+        "| recon s | render ms/view | Gaussians |",
         "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in summary:
         lines.append(
-            f"| {s['views']} | {s['kind']} | {s['method']} | {s['n']} | {s['psnr']:.2f} | "
-            f"{s['ssim']:.3f} | {s['lpips']:.3f} | {s['abs_rel']:.3f} | {s['recon_s']:.2f} | "
-            f"{s['render_ms']:.1f} | {s['gaussians']:.0f} |"
+            f"| {s['views']} | {s['kind']} | {s['method']} | {s['n']} | {_with_ci(s, 'psnr', 2)} | "
+            f"{_with_ci(s, 'ssim', 3)} | {_with_ci(s, 'lpips', 3)} | {s['abs_rel']:.3f} | "
+            f"{s['recon_s']:.2f} | {s['render_ms']:.1f} | {s['gaussians']:.0f} |"
         )
     return "\n".join(lines)
+
+
+def write_scores(rows: list[Score], out: Path) -> int:
+    """Print the summary table of ``rows`` and write ``summary.md`` and ``scores.json`` into a
+    fresh folder at ``out`` (never over an earlier evaluation). Used by ``prosplat eval
+    generator`` and ``prosplat eval improve``."""
+    table = markdown_table(summarise(rows))
+    print(table)
+    out = fresh_folder(out, overwrite=False)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
+    (out / "summary.md").write_text(table + "\n")
+    print(f"wrote {out / 'summary.md'} and scores.json")
+    return 0

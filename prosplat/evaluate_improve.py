@@ -3,6 +3,7 @@
 Each row is a (generator, improvement model or None, reference method) triple; for every
 scene and input-view count the generator reconstructs once per distinct generator, and every
 row renders and enhances the same target views, so rows differ only in what they change.
+The ladder's reference rows (flat colour, MORI paste, true depth) score the same targets.
 Scores reuse :class:`prosplat.evaluate.Score`; ``render_ms`` there is render + MORI +
 enhancement per view (the stage-2 cost), ``recon_s`` the generator's forward pass.
 """
@@ -16,7 +17,7 @@ import torch
 
 from prosplat.data.scene import SceneData
 from prosplat.enhance import render_view
-from prosplat.evaluate import Score, pick_inputs, score_view
+from prosplat.evaluate import Score, pick_inputs, reference_scores, score_view
 
 
 @dataclass
@@ -30,15 +31,22 @@ class Row:
 
 
 def evaluate_rows(
-    scene: SceneData, rows: dict[str, Row], views: list[int], dtype: torch.dtype = torch.float32
+    scene: SceneData,
+    rows: dict[str, Row],
+    views: list[int],
+    dtype: torch.dtype = torch.float32,
+    references: tuple[str, ...] | list[str] = (),
 ) -> list[Score]:
-    """Scores of every row on one scene for each input-view count."""
+    """Scores of every row on one scene for each input-view count, and the ladder's
+    ``references`` rows (:data:`prosplat.evaluate.REFERENCE_ROWS`) on the same targets."""
     out: list[Score] = []
     name = scene.folder.name if scene.folder else "scene"
     for n in views:
         if n > len(scene.input_indices):
             continue
         idx = pick_inputs(scene, n)
+        if references:
+            out += reference_scores(scene, idx, references)
         images, cams = scene.images[idx], [scene.cameras[i] for i in idx]
         near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
         cache: dict[int, tuple] = {}

@@ -23,6 +23,7 @@ import torch
 from mathutils import Matrix
 
 from prosplat.camera import Camera
+from prosplat.convert.blender import blender_from_camera
 from prosplat.convert.nerfstudio import Frame, write_transforms
 from prosplat.data.overlap import overlap_matrix
 from prosplat.data.rigs import choose_rig
@@ -64,7 +65,7 @@ def configure_render(size: int, samples: int, denoise: bool, seed: int, threads:
 
 
 def _place_camera(cam_obj, camera: Camera) -> None:
-    p = camera.to_blender()
+    p = blender_from_camera(camera)
     cam_obj.matrix_world = Matrix(p.matrix_world.tolist())
     cam_obj.data.lens = p.lens
     cam_obj.data.sensor_width = p.sensor_width

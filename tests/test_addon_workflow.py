@@ -20,6 +20,7 @@ from addon_support import ROOT, data_counts, ensure_registered, run_op  # noqa: 
 
 from addon import api, capture  # noqa: E402
 from prosplat import Camera  # noqa: E402
+from prosplat.convert.blender import blender_from_camera  # noqa: E402
 from prosplat.data.rigs import choose_rig  # noqa: E402
 from prosplat.image_io import read_image  # noqa: E402
 from prosplat.metrics import psnr  # noqa: E402
@@ -31,7 +32,7 @@ def _place(name: str, eye, look, lens_mm: float):
     from mathutils import Matrix
 
     cam = Camera.look_at(eye, look, (0, 0, 1), lens_mm / 36.0 * SIZE, SIZE, SIZE)
-    p = cam.to_blender()
+    p = blender_from_camera(cam)
     obj = bpy.data.objects.new(name, bpy.data.cameras.new(name))
     bpy.context.scene.collection.objects.link(obj)
     obj.matrix_world = Matrix(p.matrix_world.tolist())

@@ -164,6 +164,20 @@ def test_run_writes_table_json_plot_and_never_clobbers(data, model, tmp_path, mo
     assert saved["meta"]["repeats"] == 2 and len(saved["rows"]) == 4 * len(saved["meta"]["points"])
     md = (out / "points.md").read_text()
     assert "| tiny | base | 32 | 4 | auto | on | fp32 |" in md and "| tiny | opt-5 |" in md
+    # the ladder's reference rows at the base point, scored by the ladder's own code
+    for label in ("flat colour", "MORI paste", "true depth"):
+        assert f"| tiny | {label} | 32 | 4 | - | off |" in md
+    scene = load_scene(data / "scene_a")
+    ref = {
+        (r["point"], r["target"]): r["psnr"] for r in saved["rows"] if r["family"] == "reference"
+    }
+    from prosplat.evaluate import reference_scores
+
+    mine = reference_scores(scene, pick_inputs(scene, 4), ["flat", "paste", "true-depth"])
+    for s, t in zip(mine, scene.target_indices * 3):
+        assert ref[s.method, t] == pytest.approx(s.psnr, abs=1e-6)
+    assert points.run(parse(*argv, "--references", "flat,nope")) == 2
+    assert "not among" in capsys.readouterr().err
     assert (out / "pareto.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     before = (out / "points.json").read_bytes()
     assert points.run(parse(*argv)) == 0

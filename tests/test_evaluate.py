@@ -97,6 +97,33 @@ def test_cli_runs_baselines_only(scene, tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     assert "| 2 | interpolation | plane sweep |" in res.stdout
     assert "| 2 | interpolation | 3DGS opt 3 |" in res.stdout
+    for reference in ("flat colour", "MORI paste", "true depth"):  # the ladder's rows, by default
+        assert f"| 2 | interpolation | {reference} |" in res.stdout
     assert (tmp_path / "eval" / "summary.md").exists() and (
         tmp_path / "eval" / "scores.json"
     ).exists()
+
+
+def test_reference_rows_score_the_same_targets_in_both_evaluations(scene):
+    """`eval generator` and `eval improve` add the ladder's flat / paste / true-depth rows; the
+    flat row is the inputs' mean colour, scored like any method, with an interval."""
+    from prosplat.evaluate_improve import Row, evaluate_rows
+    from prosplat.ladder import flat_image
+    from prosplat.metrics import psnr
+
+    refs = ("flat", "paste", "true-depth")
+    rows = evaluate_scene(scene, {"exact": exact_method}, views=[2], references=refs)
+    names = [r.method for r in rows]
+    assert names == ["flat colour"] * 2 + ["MORI paste"] * 2 + ["true depth"] * 2 + ["exact"] * 2
+    idx = pick_inputs(scene, 2)
+    flat = flat_image(scene.images[idx], 32, 32)
+    for r, t in zip(rows[:2], scene.target_indices):
+        assert r.psnr == pytest.approx(float(psnr(flat, scene.images[t])), abs=1e-4)
+    by = {s["method"]: s for s in summarise(rows)}
+    assert by["true depth"]["psnr"] > by["flat colour"]["psnr"] + 3  # exact geometry, 2 views
+    assert by["true depth"]["abs_rel"] < 0.1 and math.isnan(by["MORI paste"]["abs_rel"])
+    assert by["exact"]["psnr_lo"] <= by["exact"]["psnr"] <= by["exact"]["psnr_hi"]
+    torch.manual_seed(0)
+    ablation = evaluate_rows(scene, {"gen": Row(ProSplat())}, [2], references=("flat", "paste"))
+    assert [r.method for r in ablation] == names[:4] + ["gen"] * 2
+    assert [r.psnr for r in ablation[:4]] == [r.psnr for r in rows[:4]]

@@ -389,8 +389,8 @@ def run(args: argparse.Namespace) -> int:
     """``prosplat bench hard``: 0 when every case is ok, 1 when any is not, 2 on bad options."""
     import sys
 
-    from prosplat.cli import _fresh_folder
     from prosplat.data import find_scenes, load_scene
+    from prosplat.paths import fresh_folder
     from prosplat.pipeline import ProSplat
 
     def fail(message: str) -> int:
@@ -433,7 +433,7 @@ def run(args: argparse.Namespace) -> int:
         f"({platform.machine()}, {platform.system()}, torch {torch.__version__}, "
         f"{torch.get_num_threads()} threads).\n\n"
     )
-    out = _fresh_folder(args.out, args.overwrite)
+    out = fresh_folder(args.out, args.overwrite)
     out.mkdir(parents=True, exist_ok=True)
     summary = hard_case_summary(results)
     print(summary)

@@ -13,6 +13,8 @@ import statistics
 from collections.abc import Sequence
 from pathlib import Path
 
+from prosplat.ladder.stats import bootstrap_ci
+
 #: the order target kinds are shown in; others follow alphabetically
 KIND_ORDER = ("interpolation", "extrapolation")
 
@@ -26,6 +28,7 @@ FAMILY_STYLE: dict[str, tuple[str, str]] = {
     "dtype": ("tab:brown", "P"),
     "optimise": ("tab:red", "X"),
     "plane sweep": ("tab:gray", "^"),
+    "reference": ("tab:cyan", "d"),
 }
 
 
@@ -88,6 +91,8 @@ def summarise(rows: Sequence[dict]) -> list[dict]:
             recon_s=statistics.median(recon.values()),
             amortised_ms=statistics.median(r["amortised_ms"] for r in sub),
             psnr=_mean([r["psnr"] for r in sub]),
+            psnr_lo=(ci := bootstrap_ci([r["psnr"] for r in sub])).lo,
+            psnr_hi=ci.hi,
             psnr_raw=_mean([r["psnr_raw"] for r in sub]),
             ssim=_mean([r["ssim"] for r in sub]),
             lpips=_mean([r["lpips"] for r in sub]),
@@ -105,11 +110,17 @@ def summarise(rows: Sequence[dict]) -> list[dict]:
     return out
 
 
+def _psnr_ci(s: dict) -> str:
+    if "psnr_lo" not in s or math.isnan(s["psnr_lo"]):
+        return f"{s['psnr']:.2f}"
+    return f"{s['psnr']:.2f} [{s['psnr_lo']:.2f}, {s['psnr_hi']:.2f}]"
+
+
 def markdown_table(summary: Sequence[dict], repeats: int) -> str:
     """The grouped table, one section per target kind (interpolation, extrapolation)."""
     head = (
         "| split | point | px | views | budget | enhance | dtype | n | view ms | recon s "
-        "| amortised ms/view | × base | PSNR ↑ | raw PSNR | SSIM ↑ | LPIPS ↓ | Gaussians | front |\n"
+        "| amortised ms/view | × base | PSNR ↑ [95 % CI] | raw PSNR | SSIM ↑ | LPIPS ↓ | Gaussians | front |\n"
         "|---|---|---:|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:-:|"
     )
     parts = []
@@ -121,7 +132,7 @@ def markdown_table(summary: Sequence[dict], repeats: int) -> str:
                 f"| {s['split']} | {s['point']} | {s['size']} | {s['views']} | {s['budget']} | "
                 f"{'on' if s['enhance'] else 'off'} | {s['dtype']} | {s['n']} | "
                 f"{s['view_ms']:.1f} | {s['recon_s']:.2f}{once} | {s['amortised_ms']:.1f} | "
-                f"{s['x_base']:.2f} | {s['psnr']:.2f} | {s['psnr_raw']:.2f} | {s['ssim']:.3f} | "
+                f"{s['x_base']:.2f} | {_psnr_ci(s)} | {s['psnr_raw']:.2f} | {s['ssim']:.3f} | "
                 f"{s['lpips']:.3f} | {s['gaussians']:.0f} | {'★' if s['front'] else ''} |"
             )
         parts.append("\n".join(lines))
@@ -129,7 +140,9 @@ def markdown_table(summary: Sequence[dict], repeats: int) -> str:
         f"view ms: render (+ MORI + enhancement) per target view, median of {repeats} runs; "
         f"recon s: reconstruction (+ pruning) per scene, median of {repeats} runs, median over "
         "scenes; amortised = recon / targets per scene + view ms. ¹ per-scene optimisation is "
-        "timed once (it takes seconds to minutes). Quality: means over views. × base: amortised "
+        "timed once (it takes seconds to minutes), as are the ladder's reference rows (flat colour, "
+        "MORI paste, true depth: model-free). Quality: means over views, PSNR with a "
+        "bootstrapped 95 % interval over views. × base: amortised "
         "time over the base point's, same run. ★: on the Pareto front (faster and better PSNR). "
         "Quality is against ground truth at the row's own size (downsized with antialiasing), "
         "so a smaller size is scored on an easier, blurrier target."

@@ -32,16 +32,19 @@ from prosplat.bench import pareto
 from prosplat.budget import prune_pixel_aligned
 from prosplat.data.scene import SceneData, resize_views
 from prosplat.evaluate import (
+    REFERENCE_ROWS,
     Method,
     generator_method,
     optimize_method,
     pick_inputs,
     plane_sweep_method,
+    reference_scores,
     score_view,
 )
 from prosplat.metrics import psnr
 
 DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
+REFERENCE_LABELS = {"flat": "flat colour", "paste": "MORI paste", "true-depth": "true depth"}
 RENDER_HINT = (
     "render scenes with `prosplat scenes render --out DIR --seed 950000 --count 6 --size 64`"
 )
@@ -164,6 +167,51 @@ def build_points(axes: Axes, plane_sweep: bool = False) -> list[Point]:
     return points
 
 
+def reference_points(base: Point, names: list[str]) -> list[Point]:
+    """The ladder's reference rows (flat colour, MORI paste, true depth) at the base point's
+    size and view count: what the generator must beat, and what exact depth would give."""
+    if bad := [n for n in names if n not in REFERENCE_ROWS]:
+        raise ValueError(f"--references: {bad} not among {', '.join(REFERENCE_ROWS)}")
+    return [
+        replace(
+            base,
+            family="reference",
+            label=REFERENCE_LABELS[n],
+            method=n,
+            enhance=False,
+            budget=None,
+            dtype="fp32",
+        )  # fmt: skip
+        for n in names
+    ]
+
+
+def reference_rows(scene: SceneData, refs: list[Point], split: str) -> list[dict]:
+    """One row per (reference point, target), in :func:`measure_scene`'s form, scored and
+    timed (once: they are cheap and model-free) by the ladder's own rows."""
+    rows, name = [], scene.folder.name if scene.folder else "scene"
+    targets = scene.target_indices
+    for size, views in dict.fromkeys((p.size, p.views) for p in refs):
+        here = [p for p in refs if (p.size, p.views) == (size, views)]
+        idx = pick_inputs(scene, views)
+        imgs, cams = resize_views(scene.images, scene.cameras, size)
+        scores = reference_scores(scene, idx, [p.method for p in here], imgs, cams)
+        for p in here:
+            mine = [s for s in scores if s.method == p.label]  # one per target, in order
+            for t, s in zip(targets, mine, strict=True):
+                rows.append(
+                    dict(split=split, scene=name, point=p.label, family=p.family)
+                    | dict(method=p.method, size=size, views=views, enhance=False)
+                    | dict(n_targets=len(targets), budget="-", dtype="-", recon_repeats=1)
+                    | dict(recon_timed_once=True, kind=s.kind, target=t, recon_s=s.recon_s)
+                    | dict(view_ms=s.render_ms)
+                    | dict(amortised_ms=amortised_ms(s.recon_s, len(targets), s.render_ms))
+                    | dict(psnr=s.psnr, psnr_raw=s.psnr, ssim=s.ssim, lpips=s.lpips)
+                    | dict(gaussians=s.gaussians)
+                )
+    return rows
+
+
 def reconstruct(method: Method, inputs: tuple, budget) -> tuple:
     """(Gaussians, seconds): reconstruction and, for pixel-aligned methods, pruning."""
     images, cams, near, far = inputs  # images [V,3,H,W]
@@ -274,6 +322,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(flag, default=default, help=f"{text} (default {default})")
     parser.add_argument("--opt-views", type=int, default=4, help="input views for optimisation")
     parser.add_argument("--plane-sweep", action="store_true", help="add the plane-sweep baseline")
+    parser.add_argument(
+        "--references",
+        default=",".join(REFERENCE_ROWS),
+        help="the ladder's reference rows at the base point: flat, paste, true-depth "
+        f"('' for none; default {','.join(REFERENCE_ROWS)})",
+    )
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per measurement")
     parser.add_argument("--weights", default=None, help="generator checkpoint (default: shipped)")
     parser.add_argument("--out", type=Path, default=Path("out/bench/points"), help="output folder")
@@ -308,7 +362,7 @@ def _load(args: argparse.Namespace, axes: Axes) -> list[tuple[str, SceneData]]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from prosplat.cli import _fresh_folder
+    from prosplat.paths import fresh_folder
     from prosplat.pipeline import ProSplat
 
     try:
@@ -323,6 +377,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"prosplat bench points: {e}", file=sys.stderr)
         return 2
     points = build_points(axes, args.plane_sweep)
+    names = [n.strip() for n in str(args.references).split(",") if n.strip()]
+    try:
+        refs = reference_points(points[0], names)
+    except ValueError as e:
+        print(f"prosplat bench points: {e}", file=sys.stderr)
+        return 2
     started = time.perf_counter()
     first = scenes[0][1]  # warm-up on one target: first-call costs stay out of the timings
     first = first.select(first.input_indices + first.target_indices[:1])
@@ -331,6 +391,7 @@ def run(args: argparse.Namespace) -> int:
     with tqdm(total=len(scenes) * len(points) * args.repeats, desc="scene x point x repeat") as bar:
         for split, sc in scenes:
             rows += measure_scene(model, sc, points, args.repeats, split, bar)
+            rows += reference_rows(sc, refs, split)
     summary = pareto.summarise(rows)
     table = pareto.markdown_table(summary, args.repeats)
     meta = dict(
@@ -342,9 +403,9 @@ def run(args: argparse.Namespace) -> int:
         device="cpu",
         repeats=args.repeats,
         seconds=round(time.perf_counter() - started, 1),
-        points=[asdict(p) for p in points],
+        points=[asdict(p) for p in points + refs],
     )
-    out = _fresh_folder(args.out, args.overwrite)
+    out = fresh_folder(args.out, args.overwrite)
     out.mkdir(parents=True, exist_ok=True)
     (out / "points.json").write_text(
         json.dumps(dict(meta=meta, rows=rows, summary=summary), indent=1)

@@ -17,14 +17,17 @@ from prosplat.data.scene import SceneData, load_scene
 def find_scenes(root: str | Path) -> list[Path]:
     """Scene folders under ``root`` (those holding a transforms.json), sorted by name.
 
-    Half-rendered scenes never appear: the renderer moves a folder into place only when done.
+    Half-rendered scenes never appear: the renderer builds each in a hidden
+    ``.NAME.partial-PID`` folder (which holds a transforms.json just before it is renamed into
+    place), and hidden folders are skipped.
     """
     root = Path(root)
     if (root / "transforms.json").is_file():
         return [root]
     if not root.is_dir():
         raise FileNotFoundError(f"no scene folder or dataset folder at {root}")
-    return sorted(p.parent for p in root.glob("*/transforms.json"))
+    found = (p.parent for p in root.glob("*/transforms.json"))
+    return sorted(p for p in found if not p.name.startswith("."))
 
 
 class ItemKey(NamedTuple):

@@ -1,0 +1,318 @@
+"""The rungs of the evaluation ladder: every way of producing a target view that we compare.
+
+From the bottom: a flat image of the inputs' mean colour; the input MORI picks, pasted; the
+per-scene optimisation baseline; the generator's raw render; the enhanced view; and the
+upper bound, Gaussians at Blender's true input depth, raw and enhanced. A number means
+something only between these.
+
+A rung is two functions (:class:`Rung`): ``reconstruct`` runs once per scene and input set
+(timed as the reconstruction), ``view`` once per target camera (timed per view). Rungs that
+share a ``shares`` key reuse one reconstruction (the generator's Gaussians serve the raw and
+the enhanced rung), so their time is counted once and their outputs differ only where they
+should.
+
+Adding a rung: write a factory ``(LadderContext) -> list[Rung]`` and register it::
+
+    @register("my-rung")
+    def my_rung(ctx: LadderContext) -> list[Rung]:
+        if ctx.options.get("my_path") is None:
+            raise SkipRung("my-rung needs --my-path")
+        ...
+        return [Rung("my rung", reconstruct, view, depth=True)]
+
+A factory raises :class:`SkipRung` when it cannot run (no checkpoint given, no improvement
+model); the ladder prints its message and goes on without it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from prosplat.camera import Camera
+from prosplat.improve.mori import select_reference
+from prosplat.ladder.geometry import true_depth_gaussians
+
+
+@dataclass(frozen=True)
+class SceneInputs:
+    """What every rung may use of one scene: the chosen input views at the evaluation size.
+
+    ``images`` [V,3,H,W] in [0,1]; ``depths`` [V,H,W] Blender's z-depth (0 = sky), used only by
+    the upper-bound rungs; ``near``/``far`` the scene's depth range.
+    """
+
+    images: Tensor
+    cameras: list[Camera]
+    depths: Tensor | None
+    near: float
+    far: float
+
+
+@dataclass
+class View:
+    """One predicted target view: ``image`` [3,H,W]; ``depth``/``alpha`` [H,W] when the rung
+    has geometry (AbsRel is scored where alpha > 0.5), else None."""
+
+    image: Tensor
+    depth: Tensor | None = None
+    alpha: Tensor | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One ladder row.
+
+    ``reconstruct(inputs) -> state`` once per scene (timed); ``view(state, camera, inputs) ->
+    View`` per target (timed). ``shares``: rungs with the same key reuse one reconstruction
+    (and its time). ``depth``: the rung predicts depth (scored as AbsRel).
+    """
+
+    name: str
+    reconstruct: Callable[[SceneInputs], Any]
+    view: Callable[[Any, Camera, SceneInputs], View]
+    shares: str | None = None
+    depth: bool = False
+    warmup: bool = True  # run once untimed before measuring (False for slow rungs)
+
+
+class SkipRung(Exception):  # noqa: N818 (a signal, not an error)
+    """Raised by a rung factory that cannot run; its message says why and what would fix it."""
+
+
+@dataclass
+class LadderContext:
+    """What factories build rungs from: ``options`` (command-line values such as
+    ``generator``, ``improve``, ``opt_steps``, ``depthsplat``, ``budget``, ``dtype``) and the
+    models, loaded once on first use and shared by every rung."""
+
+    options: dict[str, Any] = field(default_factory=dict)
+    _model: Any = None
+
+    @property
+    def model(self):
+        """The ProSplat model (generator + improvement model when one exists)."""
+        if self._model is None:
+            from prosplat.pipeline import ProSplat
+
+            self._model = ProSplat.from_pretrained(
+                self.options.get("generator"), improve=self.options.get("improve")
+            )
+        return self._model
+
+    def improver(self, rung: str):
+        """The improvement model, or SkipRung naming ``rung`` when none is loaded (or the
+        options say ``improve=False``: then no model is loaded at all)."""
+        if self.options.get("improve") is False or self.model.improver is None:
+            raise SkipRung(f"{rung}: no improvement model (pass --improve PATH)")
+        return self.model.improver
+
+
+Factory = Callable[[LadderContext], list[Rung]]
+#: name -> factory, in ladder order (bottom first); :func:`register` adds to it
+REGISTRY: dict[str, Factory] = {}
+
+
+def register(name: str) -> Callable[[Factory], Factory]:
+    """Decorator: add a rung factory to :data:`REGISTRY` under ``name`` (``--rows`` names)."""
+
+    def add(factory: Factory) -> Factory:
+        if name in REGISTRY:
+            raise ValueError(f"a ladder rung {name!r} is already registered")
+        REGISTRY[name] = factory
+        return factory
+
+    return add
+
+
+def build_rungs(
+    names: list[str], ctx: LadderContext, log: Callable[[str], None] = print
+) -> list[Rung]:
+    """The rungs of the registered factories ``names`` (in registry order); skipped factories
+    are reported through ``log``. Raises ValueError for an unknown name."""
+    unknown = [n for n in names if n not in REGISTRY]
+    if unknown:
+        raise ValueError(f"unknown ladder rows {unknown}; choose from {', '.join(REGISTRY)}")
+    rungs = []
+    for name in (n for n in REGISTRY if n in names):
+        try:
+            rungs += REGISTRY[name](ctx)
+        except SkipRung as e:
+            log(f"skipping ladder row {name}: {e}")
+    return rungs
+
+
+# ---- the trivial answers -------------------------------------------------------------------
+
+
+def flat_image(images: Tensor, height: int, width: int) -> Tensor:
+    """[3,height,width] filled with the mean colour of every input pixel (``images`` [V,3,H,W])."""
+    return images.mean(dim=(0, 2, 3))[:, None, None].expand(3, height, width).clone()
+
+
+def paste_image(camera: Camera, inputs: SceneInputs) -> tuple[Tensor, int]:
+    """The input view MORI picks for ``camera`` (the paper's score, the same choice stage 2
+    makes), resampled to the target's size; returns (image [3,H,W], input index)."""
+    from prosplat.enhance import reference_at
+
+    j = select_reference(camera, inputs.cameras, method="paper")
+    image, _ = reference_at(inputs.images[j], inputs.cameras[j], camera.width, camera.height)
+    return image, j
+
+
+@register("flat")
+def flat_rungs(ctx: LadderContext) -> list[Rung]:
+    def view(mean: Tensor, cam: Camera, inputs: SceneInputs) -> View:
+        return View(mean[:, None, None].expand(3, cam.height, cam.width).clone())
+
+    return [Rung("flat colour", lambda inp: inp.images.mean(dim=(0, 2, 3)), view)]
+
+
+@register("paste")
+def paste_rungs(ctx: LadderContext) -> list[Rung]:
+    def view(_: None, cam: Camera, inputs: SceneInputs) -> View:
+        image, j = paste_image(cam, inputs)
+        return View(image, info={"reference": j})
+
+    return [Rung("MORI paste", lambda inp: None, view)]
+
+
+# ---- Gaussians -----------------------------------------------------------------------------
+
+
+def splat_view(gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None) -> View:
+    """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference)."""
+    from prosplat.enhance import render_view
+
+    out = render_view(
+        gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32
+    )
+    return View(
+        out.image,
+        out.depth,
+        out.alpha,
+        info={"reference": out.reference, "gaussians": len(gaussians)},
+    )
+
+
+def _dtype(ctx: LadderContext) -> torch.dtype:
+    return torch.bfloat16 if ctx.options.get("bf16") else torch.float32
+
+
+@register("optimize")
+def optimize_rungs(ctx: LadderContext) -> list[Rung]:
+    """Per-scene 3DGS optimisation (prosplat.baselines.optimize) at each ``opt_steps``."""
+    steps = ctx.options.get("opt_steps") or []
+    if not steps:
+        raise SkipRung("per-scene optimisation is slow; pass --opt-steps 300 1000 to run it")
+    from prosplat.baselines import optimize_gaussians
+
+    def make(n: int) -> Rung:
+        def reconstruct(inp: SceneInputs):
+            return optimize_gaussians(inp.images, inp.cameras, inp.near, inp.far, steps=n)[0]
+
+        return Rung(f"3DGS opt {n}", reconstruct, splat_view, depth=True, warmup=False)
+
+    return [make(int(n)) for n in steps]
+
+
+def _generator_gaussians(ctx: LadderContext) -> Callable[[SceneInputs], Any]:
+    from prosplat.budget import prune_pixel_aligned
+
+    def reconstruct(inp: SceneInputs):
+        out = ctx.model.reconstruct_full(inp.images, inp.cameras, inp.near, inp.far)
+        g, depths = out.gaussians(0), out.depths[0]
+        return prune_pixel_aligned(g, depths, inp.cameras, budget=ctx.options.get("budget"))[0]
+
+    return reconstruct
+
+
+@register("generator")
+def generator_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's render (pruned by the automatic budget, as the pipeline ships it)."""
+    return [Rung("generator", _generator_gaussians(ctx), splat_view, "generator", depth=True)]
+
+
+@register("enhanced")
+def enhanced_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's render enhanced by stage 2 (what ``ProSplat.render`` returns)."""
+    improver, dtype = ctx.improver("enhanced"), _dtype(ctx)
+
+    def view(g, cam: Camera, inp: SceneInputs) -> View:
+        return splat_view(g, cam, inp, improver, dtype)
+
+    return [Rung("enhanced", _generator_gaussians(ctx), view, "generator", depth=True)]
+
+
+def _true_depth(inp: SceneInputs):
+    """(surface Gaussians, sky Gaussians or None) at the inputs' true depth."""
+    if inp.depths is None:
+        raise ValueError("the true-depth rows need the scenes' depth maps")
+    surface = true_depth_gaussians(inp.images, inp.depths, inp.cameras, part="surface")
+    has_sky = bool((inp.depths <= 0).any())
+    sky = true_depth_gaussians(inp.images, inp.depths, inp.cameras, part="sky") if has_sky else None
+    return surface, sky
+
+
+def true_depth_view(state, cam: Camera, inp: SceneInputs, improver=None, dtype=None) -> View:
+    """The surfaces rendered over the sky shell (rendered apart, so the depth and alpha scored
+    are the surfaces': a 10 % leak of a sky 20x farther away would otherwise triple a pixel's
+    depth), enhanced with the MORI reference when ``improver`` is given."""
+    from prosplat.enhance import enhance
+    from prosplat.render import render
+
+    surface, sky = state
+    with torch.no_grad():
+        out = render(surface, cam)  # rgb over black, alpha, depth [H,W]
+        raw = out.rgb
+        if sky is not None:
+            raw = raw + (1 - out.alpha)[None] * render(sky, cam).rgb
+    if improver is None:
+        return View(raw, out.depth, out.alpha, info={"gaussians": len(surface)})
+    j = select_reference(cam, inp.cameras, method="paper")
+    with torch.no_grad():
+        image = enhance(improver, raw, cam, inp.images[j], inp.cameras[j], dtype or torch.float32)
+    return View(image, out.depth, out.alpha, info={"reference": j, "gaussians": len(surface)})
+
+
+@register("true-depth")
+def true_depth_rungs(ctx: LadderContext) -> list[Rung]:
+    """The upper bound: Gaussians at Blender's true input depth, raw and (with an improvement
+    model) enhanced."""
+    rungs = [Rung("true depth", _true_depth, true_depth_view, "true depth", depth=True)]
+    try:
+        improver, dtype = ctx.improver("true depth enhanced"), _dtype(ctx)
+    except SkipRung:
+        return rungs
+
+    def view(state, cam: Camera, inp: SceneInputs) -> View:
+        return true_depth_view(state, cam, inp, improver, dtype)
+
+    return rungs + [Rung("true depth enhanced", _true_depth, view, "true depth", depth=True)]
+
+
+@register("depthsplat")
+def depthsplat_rungs(ctx: LadderContext) -> list[Rung]:
+    """DepthSplat's released checkpoint as stage 1, when a file is given (``--depthsplat``).
+
+    The port (``prosplat.generator.depthsplat``) is another branch's work; until it lands this
+    row explains itself and is skipped.
+    """
+    path = ctx.options.get("depthsplat")
+    if not path:
+        raise SkipRung("no DepthSplat checkpoint given (--depthsplat PATH)")
+    try:
+        from prosplat.generator.depthsplat import load_depthsplat  # type: ignore[import-not-found]
+    except ImportError as e:
+        raise SkipRung(f"this ProSplat has no DepthSplat port yet ({e})") from None
+    model = load_depthsplat(path)
+
+    def reconstruct(inp: SceneInputs):
+        return model.reconstruct(inp.images, inp.cameras, inp.near, inp.far)
+
+    return [Rung("DepthSplat", reconstruct, splat_view, depth=True)]
