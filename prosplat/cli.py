@@ -35,6 +35,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         samples=args.samples,
         budget=args.budget,
         bf16=args.bf16,
+        refine_steps=args.refine_steps,
+        refine_seconds=args.refine_seconds,
         overwrite=args.overwrite,
     )
     try:
@@ -183,8 +185,23 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     from prosplat.pipeline import ProSplat
 
     methods = {}
+    budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
+    try:
+        check_refine_args(args.refine_steps, args.refine_seconds)
+    except ValueError as e:
+        print(f"prosplat eval generator: {e}", file=sys.stderr)
+        return 2
     if not args.no_generator:
-        methods["generator"] = evaluate.generator_method(ProSplat.from_pretrained(args.weights))
+        model = ProSplat.from_pretrained(args.weights, improve=False)
+        methods["generator"] = evaluate.generator_method(model)
+        for steps in args.refine_steps:
+            methods[evaluate.refine_label(steps=steps)] = evaluate.refine_method(
+                model, steps=steps, budget=budget
+            )
+        for secs in args.refine_seconds:
+            methods[evaluate.refine_label(seconds=secs)] = evaluate.refine_method(
+                model, seconds=secs, budget=budget
+            )
     if "plane_sweep" in args.baselines:
         methods["plane sweep"] = evaluate.plane_sweep_method()
     if "optimize" in args.baselines:
@@ -196,9 +213,55 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     folders = find_scenes(args.data)[: args.scenes]
     rows = []
     for folder in tqdm(folders, desc="evaluating scenes", unit="scene"):
-        budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
         rows += evaluate.evaluate_scene(load_scene(folder), methods, args.views, budget=budget)
     return write_scores(rows, args.out)
+
+
+def check_refine_args(steps: list[int] | int, seconds: list[float] | float | None) -> None:
+    """--refine-steps must be integers >= 0 and --refine-seconds finite numbers > 0."""
+    import math
+
+    steps = steps if isinstance(steps, list) else [steps]
+    seconds = seconds if isinstance(seconds, list) else [] if seconds is None else [seconds]
+    if bad := [s for s in steps if s < 0]:
+        raise ValueError(f"--refine-steps must be >= 0 (0: no refinement), got {bad}")
+    if bad := [s for s in seconds if not (math.isfinite(s) and s > 0)]:
+        raise ValueError(f"--refine-seconds must be a number of seconds > 0, got {bad}")
+
+
+def add_refine_arguments(parser: argparse.ArgumentParser, many: bool = False) -> None:
+    """``--refine-steps`` / ``--refine-seconds``: fit the generator's Gaussians to the inputs
+    (prosplat.refine) for a step count or a time budget; ``many``: one row per value."""
+    if many:
+        parser.add_argument(
+            "--refine-steps",
+            type=int,
+            nargs="*",
+            default=[],
+            help="add a 'generator+refine N' row per step count (refinement after the budget)",
+        )
+        parser.add_argument(
+            "--refine-seconds",
+            type=float,
+            nargs="*",
+            default=[],
+            help="add a 'generator+refine Ss' row per time budget in seconds",
+        )
+        return
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(
+        "--refine-steps",
+        type=int,
+        default=0,
+        help="refine the Gaussians against the inputs for N steps after the budget (default 0: "
+        "off; README, 'Refinement')",
+    )
+    group.add_argument(
+        "--refine-seconds",
+        type=float,
+        default=None,
+        help="refine for this many seconds instead of a step count",
+    )
 
 
 def write_scores(rows: list, out: Path) -> int:
@@ -266,6 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="Gaussians to keep: a count or a fraction (default: automatic)",
     )
     demo.add_argument("--bf16", action="store_true", help="run stage 2 under bfloat16 autocast")
+    add_refine_arguments(demo)
     demo.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
     demo.set_defaults(func=cmd_demo)
 
@@ -414,6 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="Gaussian budget: a count (>1) or a fraction (<=1); default: automatic",
     )
+    add_refine_arguments(eg, many=True)
     eg.add_argument("--scenes", type=int, default=None, help="evaluate only the first N scenes")
     eg.add_argument("--no-generator", action="store_true", help="baselines only")
     eg.add_argument("--out", type=Path, default=Path("out/eval"), help="where scores go")

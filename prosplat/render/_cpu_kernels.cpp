@@ -98,6 +98,25 @@ void parallel_tiles(int64_t n_tiles, int n_threads, Fn fn) {
   for (auto& th : pool) th.join();
 }
 
+// Thread tid takes tiles tid, tid + n, tid + 2n, ...: a fixed split, so each thread's
+// gradient buffer sums the same tiles in the same order on every run (the backward pass is
+// then bitwise reproducible for a thread count, which seeded refinement relies on).
+template <typename Fn>
+void parallel_tiles_static(int64_t n_tiles, int n_threads, Fn fn) {
+  n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
+  auto worker = [&](int tid) {
+    for (int64_t t = tid; t < n_tiles; t += n_threads) fn(t, tid);
+  };
+  if (n_threads == 1) {
+    worker(0);
+    return;
+  }
+  std::vector<std::thread> pool;
+  for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker, i);
+  worker(0);
+  for (auto& th : pool) th.join();
+}
+
 template <typename T>
 void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means2d, const T* conics,
              const T* opacities, const T* feats, const int32_t* boxes, const int64_t* order, T* out,
@@ -181,7 +200,7 @@ void backward(int64_t n_sorted, int n_feat, int width, int height, const T* mean
   const int64_t n_pix = int64_t(width) * height;
   const int stride = 6 + n_feat;
   const T min_alpha = T(1) / T(255);
-  parallel_tiles(int64_t(tl.tiles_x) * tl.tiles_y, n_threads, [&](int64_t tile, int tid) {
+  parallel_tiles_static(int64_t(tl.tiles_x) * tl.tiles_y, n_threads, [&](int64_t tile, int tid) {
     T* gbuf = grads + int64_t(tid) * n_gauss * stride;
     const TileRect r = tile_rect(tl, tile, width, height);
     const int x0 = r.x0, y0 = r.y0, x1 = r.x1, y1 = r.y1;
