@@ -78,6 +78,8 @@ def sweep(args) -> None:
     model = ProSplat.from_pretrained(args.weights, improve=True)
     steps = [int(s) for s in args.steps.split(",") if s.strip()]
     names = [v.strip() for v in args.variants.split(",")] if args.variants else list(VARIANTS)
+    ablations = [v.strip() for v in args.ablations.split(",") if v.strip()]
+    ablation_steps = [int(s) for s in args.ablation_steps.split(",") if s.strip()]
     rows = defaultdict(lambda: defaultdict(list))  # (label, enhance) -> metric -> per scene
     folders = [f for root in args.data for f in find_scenes(root)[: args.scenes]]
     for folder in folders:
@@ -92,14 +94,15 @@ def sweep(args) -> None:
         for enh in (False, True):
             for m, v in score(model, g, imgs, cams, timgs, tcams, enh).items():
                 rows["generator", enh][m].append(v)
-        for name in names:
-            for n in steps:
-                r = refine(g, imgs, cams, steps=n, depths=depths, options=VARIANTS[name])
-                label = f"refine {n}, {name}"
-                for enh in (False, True):
-                    rows[label, enh]["seconds"].append(r.stats.seconds)
-                    for m, v in score(model, r.gaussians, imgs, cams, timgs, tcams, enh).items():
-                        rows[label, enh][m].append(v)
+        plan = [(name, n) for name in names for n in steps]
+        plan += [(name, n) for name in ablations for n in ablation_steps]
+        for name, n in plan:
+            r = refine(g, imgs, cams, steps=n, depths=depths, options=VARIANTS[name])
+            label = f"refine {n}, {name}"
+            for enh in (False, True):
+                rows[label, enh]["seconds"].append(r.stats.seconds)
+                for m, v in score(model, r.gaussians, imgs, cams, timgs, tcams, enh).items():
+                    rows[label, enh][m].append(v)
         print(f"{folder.name} done", flush=True)
     lines = [
         f"| {args.size} px, {args.views} inputs | enhance | PSNR ↑ | SSIM ↑ | LPIPS ↓ | refine s |",
@@ -165,6 +168,8 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--steps", default="50,100,300")
     ap.add_argument("--variants", default=None, help=f"comma-separated of {list(VARIANTS)}")
+    ap.add_argument("--ablations", default="", help="variants run only at --ablation-steps")
+    ap.add_argument("--ablation-steps", default="100")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--sizes", default="64,128,256", help="--profile: sizes")
