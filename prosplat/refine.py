@@ -34,6 +34,7 @@ from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 from prosplat.metrics.image import SSIM_WINDOW, ssim_map
 from prosplat.render import render
+from prosplat.render.projection import DILATION, FOV_CLAMP, MIN_ALPHA, NEAR_PLANE
 
 __all__ = [
     "LearningRates",
@@ -87,6 +88,10 @@ class RefineOptions:
         sh_degree: SH degree fitted: an int 0-3, or ``"auto"`` (:func:`sh_degree_for_views`:
             raised only when the views allow). Bands above the Gaussians' own start at zero.
         background: RGB behind the Gaussians (default black, as the generator renders).
+        cull: render each step only the Gaussians that can touch that view (a conservative
+            bound, :func:`may_touch`); the image and gradients are bitwise those of rendering
+            all of them (the tests hold it to its twin, ``cull=False``), in about half the
+            time of the projection with 2-6 wide-baseline views.
         deterministic: on the CPU a seed gives bitwise the same Gaussians for a given thread
             count (the rasterizer's backward pass assigns tiles to threads statically).
             With False nothing changes today; the flag documents the contract.
@@ -100,6 +105,7 @@ class RefineOptions:
     freeze_means_steps: int = 0
     sh_degree: int | str = 0
     background: tuple[float, float, float] | None = None
+    cull: bool = True
     deterministic: bool = True
 
     @classmethod
@@ -241,6 +247,44 @@ class GaussianParams(torch.nn.Module):
             {"params": [self.quats], "lr": lr.rotation},
         ]
         return torch.optim.Adam(groups, eps=1e-15)
+
+
+@torch.no_grad()
+def may_touch(params: GaussianParams, camera: Camera) -> Tensor:
+    """Indices of the Gaussians whose pixel box in ``camera`` may be non-empty: a superset of
+    what :func:`prosplat.render.project_gaussians` marks valid, from the means, the largest
+    scale and the opacity alone (no rotation, no covariance), so it costs a few ops per
+    Gaussian.
+
+    The rasterizer's half-width is ``sqrt(r²·(a0 + 0.3))`` with ``r² = 2 ln(255·o)`` and
+    ``a0 = |diag(s)·R_qᵀ·v0|² <= s_max²·|v0|²``, where ``v0 = fx/z·(R_cam[0] - x_c·R_cam[2])``
+    has ``|v0|² = (fx/z)²·(1 + x_c²)`` (rows of a rotation are orthonormal; ``x_c`` is x/z
+    clamped as the projection clamps it); likewise in y. A Gaussian is kept when it is in
+    front of the near plane, at least 1/255 opaque, and its bounded box meets the image.
+    """
+    f64 = torch.float64
+    m = params.means.detach().to(f64).T  # [3,N]
+    pc = (
+        camera.R.to(device=m.device, dtype=f64) @ m
+        + camera.t.to(device=m.device, dtype=f64)[:, None]
+    )
+    x, y, z = pc
+    o = torch.sigmoid(params.logit_opacities.detach().to(f64))
+    s_max = torch.exp(params.log_scales.detach().to(f64).amax(dim=1))
+    keep = (z >= NEAR_PLANE) & (o >= MIN_ALPHA)
+    z_safe = torch.where(keep, z, torch.ones_like(z))
+    r2 = 2.0 * torch.log((255.0 * o).clamp_min(1.0))
+    W, H = camera.width, camera.height
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    for coord, f, c, size in ((x, fx, cx, W), (y, fy, cy, H)):
+        t = coord / z_safe
+        tan = 0.5 * size / f
+        t_c = t.clamp(-(c / f + FOV_CLAMP * tan), (size - c) / f + FOV_CLAMP * tan)
+        a_bound = (s_max * f / z_safe) ** 2 * (1 + t_c * t_c) + DILATION
+        half = torch.sqrt(r2 * a_bound) * 1.001 + 0.01
+        u = f * t + c
+        keep &= (u + half >= 0) & (u - half <= size) & torch.isfinite(half)
+    return torch.nonzero(keep).squeeze(1)
 
 
 def check_images(images: Tensor, cameras: Sequence[Camera], what: str = "refine") -> None:
@@ -408,7 +452,11 @@ def refine(
             order = torch.randperm(v, generator=gen).tolist()
         i = order.pop()
         g = params.gaussians()
-        out = render(g, cameras[i], bg)
+        if options.cull:  # only what can touch view i: the same image, less projection work
+            sub = may_touch(params, cameras[i])
+            out = render(Gaussians(*(t[sub] for t in g.tensors().values())), cameras[i], bg)
+        else:
+            out = render(g, cameras[i], bg)
         photo = photometric_loss(out.rgb, images[i], options.ssim_weight)
         loss = photo
         if use_depth:

@@ -239,3 +239,32 @@ def test_bad_arguments_raise_value_error_naming_the_fix(scene, change, message):
     kwargs.update(change)
     with pytest.raises(ValueError, match=message):
         refine(scene["start"], images, cams, **kwargs)
+
+
+def test_culling_is_bitwise_its_slow_twin(scene):
+    """cull=True renders only may_touch's Gaussians each step; refinement must give exactly
+    what rendering all of them (cull=False) gives, and may_touch must hold every Gaussian the
+    rasterizer draws, here with needles, huge and off-screen Gaussians mixed in."""
+    from prosplat.refine import GaussianParams, may_touch
+
+    images, cams = inputs(scene)
+    fast, slow = (
+        refine(scene["start"], images, cams, steps=8, options=RefineOptions(cull=c)) for c in (1, 0)
+    )
+    for name, value in fast.gaussians.tensors().items():
+        assert torch.equal(value, slow.gaussians.tensors()[name]), name
+    assert fast.stats.loss_history == slow.stats.loss_history
+
+    gen = torch.Generator().manual_seed(3)
+    n = 4000
+    means = (torch.rand(n, 3, generator=gen) - 0.5) * torch.tensor([12.0, 12.0, 10.0])
+    log_s = torch.empty(n, 3).uniform_(-9, 1, generator=gen)  # needles to room-sized blobs
+    quats = torch.randn(n, 4, generator=gen)
+    o = torch.rand(n, generator=gen) ** 3
+    g = Gaussians(means, quats, log_s.exp(), o, torch.zeros(n, 1, 3))
+    params = GaussianParams(g)
+    for cam in scene["cams"] + [scene["cams"][0].resized(48, 20)]:
+        drawn = torch.nonzero(render(params.gaussians().detach(), cam).visible).squeeze(1)
+        kept = may_touch(params, cam)
+        assert set(drawn.tolist()) <= set(kept.tolist())
+        assert len(kept) < n  # it does cull
