@@ -249,13 +249,18 @@ def add_refine_arguments(parser: argparse.ArgumentParser, many: bool = False) ->
             help="add a 'generator+refine Ss' row per time budget in seconds",
         )
         return
+    from prosplat.refine import RECOMMENDED_STEPS
+
     group = parser.add_mutually_exclusive_group()
     group.add_argument(
         "--refine-steps",
         type=int,
+        nargs="?",
+        const=RECOMMENDED_STEPS,
         default=0,
+        metavar="N",
         help="refine the Gaussians against the inputs for N steps after the budget (default 0: "
-        "off; README, 'Refinement')",
+        f"off; the bare flag: {RECOMMENDED_STEPS}, the measured knee; README, 'Refinement')",
     )
     group.add_argument(
         "--refine-seconds",

@@ -104,6 +104,8 @@ def test_eval_cli_adds_refine_rows(scene, tmp_path, capsys):
 def test_demo_refine_options_parse_and_check():
     args = build_parser().parse_args(["demo", "--refine-steps", "300"])
     assert (args.refine_steps, args.refine_seconds) == (300, None)
+    assert build_parser().parse_args(["demo", "--refine-steps"]).refine_steps == 300  # the knee
+    assert build_parser().parse_args(["demo"]).refine_steps == 0  # off unless asked for
     args = build_parser().parse_args(["demo", "--refine-seconds", "5"])
     assert (args.refine_steps, args.refine_seconds) == (0, 5.0)
     with pytest.raises(SystemExit):
