@@ -112,7 +112,11 @@ def sweep(args) -> None:
     for (label, enh), m in rows.items():
         mean = {k: sum(v) / len(v) for k, v in m.items() if k != "seconds"}
         secs = statistics.median(m["seconds"]) if m.get("seconds") else float("nan")
-        summary.append(dict(label=label, enhance=enh, seconds=secs, n=len(m["psnr"]), **mean))
+        per_scene = {k: v for k, v in m.items()}
+        summary.append(
+            dict(label=label, enhance=enh, seconds=secs, n=len(m["psnr"]), per_scene=per_scene)
+            | mean
+        )
         lines.append(
             f"| {label} | {'on' if enh else 'off'} | {mean['psnr']:.2f} | {mean['ssim']:.3f} | "
             f"{mean['lpips']:.3f} | {secs:.1f} |"
@@ -143,7 +147,7 @@ def profile(args) -> None:
             f"{size} px: {len(g)} Gaussians, {r.stats.steps_per_s:.1f} steps/s "
             f"({1e3 / r.stats.steps_per_s:.1f} ms/step, {torch.get_num_threads()} threads)"
         )
-        if size in (64, 128):
+        if size in (64, 128) and not args.timing_only:
             prof = cProfile.Profile()
             prof.enable()
             refine(g, imgs, cams, steps=args.profile_steps, depths=depths)
@@ -174,7 +178,11 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--sizes", default="64,128,256", help="--profile: sizes")
     ap.add_argument("--profile-steps", type=int, default=30)
+    ap.add_argument("--timing-only", action="store_true", help="--profile: steps/s only")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     t0 = time.perf_counter()
     profile(args) if args.profile else sweep(args)
     print(f"{time.perf_counter() - t0:.0f} s")
