@@ -166,7 +166,7 @@ def test_photometric_loss_matches_its_checked_twin():
     assert float(fast.detach()) == pytest.approx(float(slow.detach()), abs=1e-12)
     assert torch.allclose(g_fast, g_slow, atol=1e-12)
     assert float(photometric_loss(pred, target, 0.0).detach()) == pytest.approx(
-        float((pred - target).abs().mean())
+        float((pred - target).abs().mean().detach())
     )
 
 
