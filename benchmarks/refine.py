@@ -80,6 +80,7 @@ def sweep(args) -> None:
     names = [v.strip() for v in args.variants.split(",")] if args.variants else list(VARIANTS)
     ablations = [v.strip() for v in args.ablations.split(",") if v.strip()]
     ablation_steps = [int(s) for s in args.ablation_steps.split(",") if s.strip()]
+    seconds = [float(s) for s in args.seconds.split(",") if s.strip()]
     rows = defaultdict(lambda: defaultdict(list))  # (label, enhance) -> metric -> per scene
     folders = [f for root in args.data for f in find_scenes(root)[: args.scenes]]
     for folder in folders:
@@ -94,32 +95,38 @@ def sweep(args) -> None:
         for enh in (False, True):
             for m, v in score(model, g, imgs, cams, timgs, tcams, enh).items():
                 rows["generator", enh][m].append(v)
-        plan = [(name, n) for name in names for n in steps]
-        plan += [(name, n) for name in ablations for n in ablation_steps]
-        for name, n in plan:
-            r = refine(g, imgs, cams, steps=n, depths=depths, options=VARIANTS[name])
-            label = f"refine {n}, {name}"
+        plan = [(name, n, None) for name in names for n in steps]
+        plan += [(name, n, None) for name in ablations for n in ablation_steps]
+        plan += [(name, None, sec) for name in names for sec in seconds]
+        for name, n, sec in plan:
+            r = refine(g, imgs, cams, steps=n, seconds=sec, depths=depths, options=VARIANTS[name])
+            label = f"refine {n}, {name}" if sec is None else f"refine {sec:g} s, {name}"
+            rows[label, False]["steps"].append(r.stats.steps)
             for enh in (False, True):
                 rows[label, enh]["seconds"].append(r.stats.seconds)
                 for m, v in score(model, r.gaussians, imgs, cams, timgs, tcams, enh).items():
                     rows[label, enh][m].append(v)
         print(f"{folder.name} done", flush=True)
     lines = [
-        f"| {args.size} px, {args.views} inputs | enhance | PSNR ↑ | SSIM ↑ | LPIPS ↓ | refine s |",
-        "|---|---|---:|---:|---:|---:|",
+        f"| {args.size} px, {args.views} inputs | enhance | PSNR ↑ | SSIM ↑ | LPIPS ↓ | refine s "
+        "| steps |",
+        "|---|---|---:|---:|---:|---:|---:|",
     ]
     summary = []
     for (label, enh), m in rows.items():
-        mean = {k: sum(v) / len(v) for k, v in m.items() if k != "seconds"}
+        mean = {k: sum(v) / len(v) for k, v in m.items() if k not in ("seconds", "steps")}
         secs = statistics.median(m["seconds"]) if m.get("seconds") else float("nan")
         per_scene = {k: v for k, v in m.items()}
+        n_steps = (
+            statistics.median(rows[label, False]["steps"]) if "steps" in rows[label, False] else ""
+        )
         summary.append(
             dict(label=label, enhance=enh, seconds=secs, n=len(m["psnr"]), per_scene=per_scene)
             | mean
         )
         lines.append(
             f"| {label} | {'on' if enh else 'off'} | {mean['psnr']:.2f} | {mean['ssim']:.3f} | "
-            f"{mean['lpips']:.3f} | {secs:.1f} |"
+            f"{mean['lpips']:.3f} | {secs:.1f} | {n_steps} |"
         )
     table = "\n".join(lines)
     print(table)
@@ -171,6 +178,7 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=4)
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--steps", default="50,100,300")
+    ap.add_argument("--seconds", default="", help="time budgets (s) run for each variant")
     ap.add_argument("--variants", default=None, help=f"comma-separated of {list(VARIANTS)}")
     ap.add_argument("--ablations", default="", help="variants run only at --ablation-steps")
     ap.add_argument("--ablation-steps", default="100")
