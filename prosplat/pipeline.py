@@ -247,7 +247,7 @@ class ProSplat:
     ) -> Gaussians:
         """Gaussians of one scene; see :meth:`reconstruct_full`.
 
-        Without refinement (``refine_steps=0``, ``refine_seconds=None``): the generator's
+        Without refinement (``refine_steps=0``, ``refine_seconds`` None or 0): the generator's
         N·H·W Gaussians, view-major, unpruned (prune with
         :func:`prosplat.budget.prune_pixel_aligned`). With ``refine_steps=N`` or
         ``refine_seconds=S`` (not both): :meth:`reconstruct_refined`'s Gaussians, pruned to
@@ -255,7 +255,7 @@ class ProSplat:
         pixel-aligned, so prune before, never after). ``budget``, ``refine_options``, ``seed``,
         ``progress`` and ``cancel`` only matter with refinement.
         """
-        if not refine_steps and refine_seconds is None:
+        if not refine_steps and not refine_seconds:
             return self.reconstruct_full(images, cameras, near, far, grad=grad).gaussians(0)
         return self.reconstruct_refined(
             images,
@@ -263,7 +263,7 @@ class ProSplat:
             near,
             far,
             steps=refine_steps or None,
-            seconds=refine_seconds,
+            seconds=refine_seconds or None,
             budget=budget,
             options=refine_options,
             seed=seed,
@@ -290,7 +290,7 @@ class ProSplat:
 
         The generator's Gaussians are pruned first (``budget``: a count, a fraction, or None
         for the automatic budget), so refinement fits only Gaussians that will be kept and
-        keeps their count; its depth term pulls toward the generator's per-view depth.
+        keeps their count; the generator's per-view depth feeds the optional depth term.
         Exactly one of ``steps`` / ``seconds``; ``progress(step, total, loss)`` and
         ``cancel()`` as in :func:`~prosplat.refine.refine`.
 

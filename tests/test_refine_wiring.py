@@ -49,6 +49,7 @@ def test_reconstruct_refines_the_pruned_gaussians(scene, model):
     timed = model.reconstruct(images, cams, near, far, refine_seconds=0.2)
     assert len(timed) == len(again)
     assert len(model.reconstruct(images, cams, near, far, refine_steps=0)) == len(raw)
+    assert len(model.reconstruct(images, cams, near, far, refine_seconds=0)) == len(raw)  # off
 
 
 def test_reconstruct_refusals_name_the_fix(scene, model):
@@ -57,6 +58,8 @@ def test_reconstruct_refusals_name_the_fix(scene, model):
         model.reconstruct(images, cams, near, far, refine_steps=3, refine_seconds=1.0)
     with pytest.raises(ValueError, match="integer >= 0"):
         model.reconstruct(images, cams, near, far, refine_steps=-2)
+    with pytest.raises(ValueError, match="seconds must be a finite number > 0"):
+        model.reconstruct(images, cams, near, far, refine_seconds=float("nan"))
     bad = images.clone()
     bad[0, 0, 0, 0] = float("nan")
     with pytest.raises(ValueError, match="NaN"):

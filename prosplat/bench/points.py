@@ -4,8 +4,9 @@ An operating point is (input resolution, input views, Gaussian budget, enhanceme
 dtype, refinement steps) for the generator, or a per-scene optimisation baseline at some step
 count. The full factorial is too slow to be useful, so one axis is varied at a time around a
 base point (64 px, 4 views, automatic budget, enhancement on, fp32, no refinement), plus
-enhancement off at every view count. Every point runs in the same process on the same scenes, and repeats are interleaved
-across points, so ratios between points are fair even on a busy machine.
+enhancement off at every view count. Every point runs in the same process on the same
+scenes, and repeats are interleaved across points, so ratios between points are fair even on
+a busy machine.
 
 Per scene and point the reconstruction (+ pruning) is timed ``--repeats`` times and every
 target view's render (+ MORI + enhancement) ``--repeats`` times; medians are kept. Points that
