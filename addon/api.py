@@ -65,11 +65,15 @@ def reconstruct(inputs, name=None, collection=None, budget=None, scene=None, **o
     """Gaussian point-cloud object from the input collection's cameras and images.
 
     ``budget``: most Gaussians kept (None: the preference, 0: automatic). ``options`` may set
-    ``device``, ``weights``, ``max_size``, ``near``, ``far`` (defaults: the preferences/data).
+    ``device``, ``weights``, ``max_size``, ``near``, ``far``, ``refine_seconds`` or
+    ``refine_steps`` (fit the Gaussians to the inputs; 0: off) (defaults: the
+    preferences/data).
     """
     scene = _scene(scene)
     task, params = steps.reconstruct_job(inputs, scene, budget=budget)
     params.update({k: v for k, v in options.items() if v is not None})
+    if params.get("refine_steps"):
+        params["refine_seconds"] = None  # a step count given here replaces the preference's time
     result = jobs.run_sync(task, params)
     target = collection or scene.collection
     return steps.apply_gaussians(result, name or f"{inputs.name} Gaussians", target, inputs)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import bpy
-from bpy.props import BoolProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from . import capture, jobs, modal, pointcloud, steps
@@ -61,10 +61,17 @@ class PROSPLAT_OT_reconstruct(modal.JobOperator, bpy.types.Operator):
         description="Most Gaussians to keep (0: automatic pruning only, -1: the preferences')",
     )  # fmt: skip
 
+    refine_seconds: FloatProperty(
+        name="Refine Seconds", default=-1.0, min=-1.0, soft_max=60.0,
+        description="Seconds to fit the Gaussians to the input images after reconstructing "
+        "(0: off, -1: the preferences')",
+    )  # fmt: skip
+
     def prepare(self, context):
         s = settings(context)
         return steps.reconstruct_job(s.inputs, context.scene, context,
-                                     None if self.budget < 0 else self.budget)  # fmt: skip
+                                     None if self.budget < 0 else self.budget,
+                                     None if self.refine_seconds < 0 else self.refine_seconds)  # fmt: skip
 
     def apply(self, context, result):
         s = settings(context)
@@ -72,8 +79,10 @@ class PROSPLAT_OT_reconstruct(modal.JobOperator, bpy.types.Operator):
         obj = steps.apply_gaussians(result, name, context.scene.collection, s.inputs)
         s.gaussians = obj
         st = result.get("stats", {})
+        secs = result.get("seconds", {})
+        refined = f", refined {secs['refine']:.1f} s" if secs.get("refine") else ""
         return (f"reconstructed {result['count']:,} Gaussians ({st.get('input', 0):,} before "
-                f"pruning) in {result.get('seconds', {}).get('total', 0):.1f} s")  # fmt: skip
+                f"pruning{refined}) in {secs.get('total', 0):.1f} s")  # fmt: skip
 
 
 class PROSPLAT_OT_render_view(modal.JobOperator, bpy.types.Operator):

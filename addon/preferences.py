@@ -4,7 +4,7 @@ install buttons that get a GUI user unstuck when Blender's Python has no torch."
 from __future__ import annotations
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from . import install, runtime
 
@@ -104,6 +104,11 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         name="Gaussian Budget", default=0, min=0,
         description="Most Gaussians a reconstruction keeps (0: automatic, lossless pruning only)",
     )  # fmt: skip
+    refine_seconds: FloatProperty(
+        name="Refine Seconds", default=runtime.Defaults.refine_seconds, min=0.0, soft_max=60.0,
+        description="After reconstructing, fit the Gaussians to the input images for this many "
+        "seconds (0: off). Sharper scenes for a few seconds; Esc cancels",
+    )  # fmt: skip
     max_input_size: IntProperty(
         name="Input Size", default=256, min=32, soft_max=1024,
         description="Long side (pixels) input images are scaled to for the generator",
@@ -126,6 +131,7 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         col.prop(self, "improve_weights_path")
         col.prop(self, "enhance")
         col.prop(self, "budget")
+        col.prop(self, "refine_seconds")
         col.prop(self, "max_input_size")
         box = layout.box()
         box.label(text="Where the heavy work runs", icon="SCRIPTPLUGINS")

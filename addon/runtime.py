@@ -44,6 +44,7 @@ class Defaults:
     improve_weights_path: str = ""
     enhance: bool = True
     budget: int = 0
+    refine_seconds: float = 0.0  # README, "Refinement": why this default
     max_input_size: int = 256
     python_path: str = ""
     extra: dict = field(default_factory=dict)

@@ -92,7 +92,9 @@ def remove_collection(coll) -> None:
 
 
 # ---- reconstruction ---------------------------------------------------------------------------
-def reconstruct_job(collection, scene, context=None, budget: int | None = None) -> tuple[str, dict]:
+def reconstruct_job(
+    collection, scene, context=None, budget: int | None = None, refine_seconds: float | None = None
+) -> tuple[str, dict]:
     p = runtime.prefs(context)
     frames = cameras.input_frames(collection, scene)
     if len(frames) < 2:
@@ -105,6 +107,10 @@ def reconstruct_job(collection, scene, context=None, budget: int | None = None) 
         "weights": runtime.weights_path(context),
         "budget": int(p.budget if budget is None else budget) or None,
         "max_size": int(p.max_input_size) or None,
+        "refine_seconds": float(
+            getattr(p, "refine_seconds", 0.0) if refine_seconds is None else refine_seconds
+        )
+        or None,
     }
     for key, prop in (("near", NEAR_PROP), ("far", FAR_PROP)):
         if collection.get(prop) is not None:

@@ -65,6 +65,7 @@ class PROSPLAT_PT_reconstruct(_Panel, bpy.types.Panel):
         p = runtime.prefs(context)
         if isinstance(p, bpy.types.AddonPreferences):
             layout.prop(p, "budget")
+            layout.prop(p, "refine_seconds")
             layout.prop(p, "max_input_size")
         col = layout.column()
         col.enabled = s.inputs is not None

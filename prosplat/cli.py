@@ -28,6 +28,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         samples=args.samples,
         budget=args.budget,
         bf16=args.bf16,
+        refine_steps=args.refine_steps,
+        refine_seconds=args.refine_seconds,
         overwrite=args.overwrite,
     )
     try:
@@ -46,8 +48,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from prosplat.demo_report import summary_rows
 
     total = summary_rows(result.views)[-1]
+    raw = "refined" if cfg.refine_steps or cfg.refine_seconds is not None else "generator"
     print(
-        f"PSNR over {total['n']} new views: generator {total['psnr_raw']:.2f} dB -> enhanced "
+        f"PSNR over {total['n']} new views: {raw} {total['psnr_raw']:.2f} dB -> enhanced "
         f"{total['psnr_enhanced']:.2f} dB; LPIPS {total['lpips_raw']:.3f} -> "
         f"{total['lpips_enhanced']:.3f}; demo took {result.timings['total']:.0f} s"
     )
@@ -202,8 +205,23 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     from prosplat.pipeline import ProSplat
 
     methods = {}
+    budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
+    try:
+        check_refine_args(args.refine_steps, args.refine_seconds)
+    except ValueError as e:
+        print(f"prosplat eval generator: {e}", file=sys.stderr)
+        return 2
     if not args.no_generator:
-        methods["generator"] = evaluate.generator_method(ProSplat.from_pretrained(args.weights))
+        model = ProSplat.from_pretrained(args.weights, improve=False)
+        methods["generator"] = evaluate.generator_method(model)
+        for steps in args.refine_steps:
+            methods[evaluate.refine_label(steps=steps)] = evaluate.refine_method(
+                model, steps=steps, budget=budget
+            )
+        for secs in args.refine_seconds:
+            methods[evaluate.refine_label(seconds=secs)] = evaluate.refine_method(
+                model, seconds=secs, budget=budget
+            )
     if "plane_sweep" in args.baselines:
         methods["plane sweep"] = evaluate.plane_sweep_method()
     if "optimize" in args.baselines:
@@ -216,10 +234,61 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     folders = find_scenes(args.data)[: args.scenes]
     rows = []
     for folder in tqdm(folders, desc="evaluating scenes", unit="scene"):
-        budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
         scene = load_scene(folder)
         rows += evaluate.evaluate_scene(scene, methods, args.views, budget=budget, references=refs)
     return evaluate.write_scores(rows, args.out)
+
+
+def check_refine_args(steps: list[int] | int, seconds: list[float] | float | None) -> None:
+    """--refine-steps must be integers >= 0 and --refine-seconds finite numbers > 0."""
+    import math
+
+    steps = steps if isinstance(steps, list) else [steps]
+    seconds = seconds if isinstance(seconds, list) else [] if seconds is None else [seconds]
+    if bad := [s for s in steps if s < 0]:
+        raise ValueError(f"--refine-steps must be >= 0 (0: no refinement), got {bad}")
+    if bad := [s for s in seconds if not (math.isfinite(s) and s > 0)]:
+        raise ValueError(f"--refine-seconds must be a number of seconds > 0, got {bad}")
+
+
+def add_refine_arguments(parser: argparse.ArgumentParser, many: bool = False) -> None:
+    """``--refine-steps`` / ``--refine-seconds``: fit the generator's Gaussians to the inputs
+    (prosplat.refine) for a step count or a time budget; ``many``: one row per value."""
+    if many:
+        parser.add_argument(
+            "--refine-steps",
+            type=int,
+            nargs="*",
+            default=[],
+            help="add a 'generator+refine N' row per step count (refinement after the budget)",
+        )
+        parser.add_argument(
+            "--refine-seconds",
+            type=float,
+            nargs="*",
+            default=[],
+            help="add a 'generator+refine Ss' row per time budget in seconds",
+        )
+        return
+    from prosplat.refine import RECOMMENDED_STEPS
+
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(
+        "--refine-steps",
+        type=int,
+        nargs="?",
+        const=RECOMMENDED_STEPS,
+        default=0,
+        metavar="N",
+        help="refine the Gaussians against the inputs for N steps after the budget (default 0: "
+        f"off; the bare flag: {RECOMMENDED_STEPS}, the measured knee; README, 'Refinement')",
+    )
+    group.add_argument(
+        "--refine-seconds",
+        type=float,
+        default=None,
+        help="refine for this many seconds instead of a step count",
+    )
 
 
 def add_bench_parsers(sub) -> None:
@@ -291,6 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="Gaussians to keep: a count or a fraction (default: automatic)",
     )
     demo.add_argument("--bf16", action="store_true", help="run stage 2 under bfloat16 autocast")
+    add_refine_arguments(demo)
     demo.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
     demo.set_defaults(func=cmd_demo)
 
@@ -481,6 +551,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="ladder reference rows on the same targets (flat colour, MORI paste, Gaussians "
         "at the true input depth; default all; none: --references)",
     )
+    add_refine_arguments(eg, many=True)
     eg.add_argument("--scenes", type=int, default=None, help="evaluate only the first N scenes")
     eg.add_argument("--no-generator", action="store_true", help="baselines only")
     eg.add_argument("--out", type=Path, default=Path("out/eval"), help="where scores go")

@@ -38,7 +38,13 @@ def cmd_curate(args: argparse.Namespace) -> int:
     model = ProSplat.from_pretrained(args.generator, improve=False)
     views = [int(v) for v in args.views.split(",")]
     cmd = "prosplat train curate " + " ".join(sys.argv[3:])
-    path = curate(model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd)
+    if args.refine_steps < 0:
+        print("prosplat train curate: --refine-steps must be >= 0 (0: off)", file=sys.stderr)
+        return 2
+    path = curate(
+        model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd,
+        refine_steps=args.refine_steps,
+    )  # fmt: skip
     print(f"curated set: {path.resolve()}")
     return 0
 
@@ -115,6 +121,13 @@ def add_train_parsers(train_sub) -> None:
     cu.add_argument("--generator", default=None, help="generator checkpoint (default: shipped)")
     cu.add_argument(
         "--views", default="2,4", help="input-view counts, comma-separated (default 2,4)"
+    )
+    cu.add_argument(
+        "--refine-steps",
+        type=int,
+        default=0,
+        help="render refined scenes: N steps of prosplat.refine after the automatic budget "
+        "(default 0: the generator's raw Gaussians)",
     )
     cu.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     cu.set_defaults(func=cmd_curate)

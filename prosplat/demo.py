@@ -5,7 +5,9 @@
    inputs) with exact cameras and depth; the scene is also saved as a .blend with one camera
    per view.
 2. The generator reconstructs Gaussians from the inputs in one forward pass; the automatic
-   Gaussian budget prunes what the scene does not need; the Gaussians are written as a PLY.
+   Gaussian budget prunes what the scene does not need; with ``--refine-steps`` or
+   ``--refine-seconds`` the survivors are fitted to the inputs (:mod:`prosplat.refine`); the
+   Gaussians are written as a PLY.
 3. Every target camera is rendered by the rasterizer and enhanced by the improvement model
    (MORI picks the reference input), then scored against Blender's image.
 4. :mod:`prosplat.demo_report` writes a side-by-side image per view, the metrics table, a
@@ -63,6 +65,8 @@ class DemoConfig:
     samples: int = 16  # Cycles samples per rendered pixel
     budget: float | None = None  # None: the automatic Gaussian budget
     bf16: bool = False  # stage 2 under bfloat16 autocast
+    refine_steps: int = 0  # refine the budget's Gaussians against the inputs (0: off)
+    refine_seconds: float | None = None  # ... or for this many seconds
     overwrite: bool = False
 
     def check(self) -> None:
@@ -78,6 +82,11 @@ class DemoConfig:
             raise ValueError(f"--samples must be >= 1, got {self.samples}")
         if self.budget is not None and not self.budget > 0:
             raise ValueError(f"--budget must be a count or a fraction in (0, 1], got {self.budget}")
+        from prosplat.cli import check_refine_args
+
+        check_refine_args(self.refine_steps, self.refine_seconds)
+        if self.refine_steps and self.refine_seconds is not None:
+            raise ValueError("give --refine-steps or --refine-seconds, not both")
 
 
 @dataclass
@@ -177,6 +186,31 @@ def downsample(scene: SceneData, size: int) -> tuple[Tensor, list[Camera]]:
     return resize_views(scene.images, scene.cameras, size)
 
 
+def _refine(cfg: DemoConfig, gaussians, images: Tensor, cameras: list[Camera], depths: Tensor):
+    """Refine the pruned Gaussians against the inputs with a progress bar; (Gaussians, s)."""
+    from prosplat.refine import refine
+
+    steps = cfg.refine_steps or None
+    bar = tqdm(total=steps, desc="refining against the inputs", unit="step")
+
+    def progress(step: int, total, loss: float) -> None:
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss:.4f}")
+
+    result = refine(
+        gaussians, images, cameras, steps=steps, seconds=cfg.refine_seconds, depths=depths,
+        progress=progress,
+    )  # fmt: skip
+    bar.close()
+    st = result.stats
+    print(
+        f"refined {st.n_gaussians:,} Gaussians for {st.steps} steps in {st.seconds:.1f} s "
+        f"({st.steps_per_s:.0f} steps/s); input-view loss {st.initial_loss:.4f} -> "
+        f"{st.final_loss:.4f}"
+    )
+    return result.gaussians, st.seconds
+
+
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Run the whole demo into a fresh folder (see the module docstring); returns the numbers."""
     from prosplat.budget import prune_pixel_aligned
@@ -217,6 +251,9 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         f"reconstructed {stats['input']:,} Gaussians in {t_recon:.2f} s; the budget kept "
         f"{stats['kept']:,} ({t_prune:.2f} s)"
     )
+    t_refine = 0.0
+    if cfg.refine_steps or cfg.refine_seconds is not None:
+        gaussians, t_refine = _refine(cfg, gaussians, in_images, in_cams, depths)
     write_ply(gaussians, out / "gaussians.ply")
 
     dtype = torch.bfloat16 if cfg.bf16 else torch.float32
@@ -264,6 +301,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
             "blender": t_blender,
             "reconstruct": t_recon,
             "prune": t_prune,
+            "refine": t_refine,
             "views": t_views,
         },
         gaussians=stats,

@@ -255,6 +255,7 @@ with bootstrapped 95 % intervals; *valid*: only the pixels some input sees
 | Blender: build + render {n_rendered} views ({result.blender_view_s:.2f} s per view) | {t["blender"]:.1f} |
 | reconstruct ({g["input"]:,} Gaussians, one forward pass) | {t["reconstruct"]:.2f} |
 | Gaussian budget ({pruned}) | {t["prune"]:.2f} |
+| refinement against the inputs ({_refine_text(s)}) | {t.get("refine", 0.0):.2f} |
 | render + enhance {len(result.views)} views, incl. scoring | {t["views"]:.1f} |
 | whole demo | {t["total"]:.1f} |
 
@@ -267,6 +268,13 @@ Input reference (the input MORI chose) | generator render | enhanced | Blender g
 
 {views}
 """
+
+
+def _refine_text(settings: dict) -> str:
+    if settings.get("refine_seconds") is not None:
+        return f"{settings['refine_seconds']:g} s budget"
+    steps = settings.get("refine_steps") or 0
+    return f"{steps} steps" if steps else "off"
 
 
 def side_by_side_name(v: ViewResult) -> str:

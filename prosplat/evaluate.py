@@ -59,6 +59,32 @@ def generator_method(model) -> Method:
     return run
 
 
+def refine_method(
+    model,
+    steps: int | None = None,
+    seconds: float | None = None,
+    budget: int | float | None = None,
+    options=None,
+) -> Method:
+    """The generator, pruned to ``budget`` (None: automatic), then refined against the inputs
+    for ``steps`` steps or ``seconds`` (:meth:`ProSplat.reconstruct_refined`). Returns no
+    depths: the refined Gaussians are already pruned and no longer pixel-aligned."""
+
+    def run(images, cameras, near, far):
+        result = model.reconstruct_refined(
+            images, cameras, near, far, steps=steps, seconds=seconds, budget=budget,
+            options=options,
+        )  # fmt: skip
+        return result.gaussians, None
+
+    return run
+
+
+def refine_label(steps: int | None = None, seconds: float | None = None) -> str:
+    """The row name of a refined generator: ``generator+refine 300`` or ``... 5s``."""
+    return f"generator+refine {steps}" if steps is not None else f"generator+refine {seconds:g}s"
+
+
 def plane_sweep_method(n_depths: int = 64) -> Method:
     from prosplat.baselines import plane_sweep_gaussians
 

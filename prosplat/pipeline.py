@@ -285,11 +285,102 @@ class ProSplat:
         cameras: Sequence[Camera],
         near: float | None = None,
         far: float | None = None,
+        refine_steps: int = 0,
+        refine_seconds: float | None = None,
         *,
         grad: bool = False,
+        budget: int | float | None = None,
+        refine_options=None,
+        seed: int = 0,
+        progress=None,
+        cancel=None,
     ) -> Gaussians:
-        """Gaussians of one scene (N·H·W of them, view-major); see :meth:`reconstruct_full`."""
-        return self.reconstruct_full(images, cameras, near, far, grad=grad).gaussians(0)
+        """Gaussians of one scene; see :meth:`reconstruct_full`.
+
+        Without refinement (``refine_steps=0``, ``refine_seconds`` None or 0): the generator's
+        N·H·W Gaussians, view-major, unpruned (prune with
+        :func:`prosplat.budget.prune_pixel_aligned`). With ``refine_steps=N`` or
+        ``refine_seconds=S`` (not both): :meth:`reconstruct_refined`'s Gaussians, pruned to
+        ``budget`` (automatic when None) and then fitted to the inputs (no longer
+        pixel-aligned, so prune before, never after). ``budget``, ``refine_options``, ``seed``,
+        ``progress`` and ``cancel`` only matter with refinement.
+        """
+        if not refine_steps and not refine_seconds:
+            return self.reconstruct_full(images, cameras, near, far, grad=grad).gaussians(0)
+        return self.reconstruct_refined(
+            images,
+            cameras,
+            near,
+            far,
+            steps=refine_steps or None,
+            seconds=refine_seconds or None,
+            budget=budget,
+            options=refine_options,
+            seed=seed,
+            progress=progress,
+            cancel=cancel,
+        ).gaussians
+
+    def reconstruct_refined(
+        self,
+        images: Tensor,
+        cameras: Sequence[Camera],
+        near: float | None = None,
+        far: float | None = None,
+        *,
+        steps: int | None = None,
+        seconds: float | None = None,
+        budget: int | float | None = None,
+        options=None,
+        seed: int = 0,
+        progress=None,
+        cancel=None,
+    ):
+        """Generator, Gaussian budget, then :func:`prosplat.refine.refine` against the inputs.
+
+        The generator's Gaussians are pruned first (``budget``: a count, a fraction, or None
+        for the automatic budget), so refinement fits only Gaussians that will be kept and
+        keeps their count; the generator's per-view depth feeds the optional depth term.
+        Exactly one of ``steps`` / ``seconds``; ``progress(step, total, loss)`` and
+        ``cancel()`` as in :func:`~prosplat.refine.refine`.
+
+        Returns:
+            :class:`prosplat.refine.RefineResult` (``gaussians``, ``stats``); ``stats`` also
+            carries ``generator_s`` and ``prune_s`` (seconds) and ``pruned_from`` (count).
+        """
+        import time
+
+        from prosplat.budget import prune_pixel_aligned
+        from prosplat.refine import check_images, refine
+
+        check_images(images, list(cameras), "reconstruct")
+        if steps is not None and seconds is not None:
+            raise ValueError(
+                "give refine_steps or refine_seconds, not both (a step count or a time budget)"
+            )
+        t0 = time.perf_counter()
+        out = self.reconstruct_full(images, cameras, near, far)
+        t1 = time.perf_counter()
+        g, depths = out.gaussians(0).detach(), out.depths[0].detach()
+        cameras = list(cameras)
+        pruned, _, _ = prune_pixel_aligned(g, depths, cameras, budget=budget)
+        t2 = time.perf_counter()
+        result = refine(
+            pruned,
+            images.to(g.means.device),
+            cameras,
+            steps=steps,
+            seconds=seconds,
+            seed=seed,
+            progress=progress,
+            cancel=cancel,
+            depths=depths,
+            options=options,
+        )
+        result.stats.generator_s = t1 - t0
+        result.stats.prune_s = t2 - t1
+        result.stats.pruned_from = len(g)
+        return result
 
     def render(
         self,

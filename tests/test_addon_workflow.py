@@ -125,6 +125,28 @@ def test_capture_reconstruct_render(tabletop) -> None:
     assert score > 12.0
 
 
+def test_reconstruct_with_a_refinement_time_budget(tabletop) -> None:
+    """Reconstruct's Refine Seconds (and api.reconstruct's refine_steps) fit the Gaussians to
+    the inputs in the worker: same count as the plain reconstruction, other positions."""
+    import numpy as np
+
+    def positions(obj) -> torch.Tensor:
+        co = np.empty(3 * len(obj.data.vertices), dtype=np.float32)
+        obj.data.vertices.foreach_get("co", co)
+        return torch.from_numpy(co)
+
+    scene, inputs, target, folder = tabletop
+    coll = scene.prosplat.inputs
+    plain = api.reconstruct(coll, name="plain")
+    res, err = run_op(bpy.ops.prosplat.reconstruct, refine_seconds=0.5)
+    assert res == {"FINISHED"}, err
+    timed = scene.prosplat.gaussians
+    stepped = api.reconstruct(coll, name="stepped", refine_steps=3)
+    n = len(plain.data.vertices)
+    assert len(timed.data.vertices) == n == len(stepped.data.vertices)
+    assert not torch.equal(positions(plain), positions(stepped))
+
+
 @pytest.mark.slow
 def test_enhanced_beats_raw_against_cycles(tabletop, tmp_path: Path) -> None:
     from prosplat.worker.tasks import load_model

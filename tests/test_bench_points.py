@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -71,7 +72,16 @@ def test_points_vary_one_axis_at_a_time():
     assert len({(p.method, p.size, p.views, p.budget, p.enhance, p.dtype) for p in pts}) == len(pts)
     wanted = "32 px|2 views|6 views|enh off|2 views, enh off|6 views, enh off|budget 0.5"
     wanted += "|budget 0.2|bf16|plane sweep|opt-300|opt-1000"
+    wanted += "|refine 50|refine 100|refine 300|refine 1000"  # the default refinement axis
     assert set(wanted.split("|")) <= set(labels)
+    refined = [p for p in pts if p.family == "refine"]
+    assert [p.method for p in refined] == ["refine-50", "refine-100", "refine-300", "refine-1000"]
+    for p in refined:  # refinement varies only the method: the base point otherwise
+        assert replace(p, family="", label="", method="") == replace(
+            base, family="", label="", method=""
+        )
+    zero = points.build_points(points.parse_axes(parse("--data", "x", "--refine-steps", "0,5")))
+    assert [p.label for p in zero if p.family == "refine"] == ["refine 5"]  # 0 is the base
     for p in pts[1:]:
         if p.family in ("resolution", "views", "budget", "dtype"):  # exactly one axis differs
             diff = [
@@ -98,6 +108,8 @@ def test_points_vary_one_axis_at_a_time():
         ("--dtypes", "fp16", "not among"),
         ("--enhance", "maybe", "not on or off"),
         ("--repeats", "0", ">= 1"),
+        ("--refine-steps", "-5", "must be >= 0"),
+        ("--refine-steps", "many", "comma-separated integers"),
     ],
 )
 def test_bad_axis_values_exit_2_before_any_work(data, capsys, flag, value, message):
@@ -119,6 +131,7 @@ def test_missing_data_and_too_many_views_exit_2(data, tmp_path, capsys):
 def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(data, model):
     scene = load_scene(data / "scene_a")
     argv = "--data x --sizes 32 --views 2,4 --budgets auto,0.5 --dtypes fp32 --opt-steps 5"
+    argv += " --refine-steps 0,4"
     axes = points.parse_axes(parse(*argv.split()))
     pts = points.build_points(axes)
     rows = points.measure_scene(model, scene, pts, repeats=2, split="tiny")
@@ -130,7 +143,8 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
         assert r["recon_s"] > 0 and r["view_ms"] > 0 and r["gaussians"] > 0
         assert r["amortised_ms"] == r["recon_s"] * 1e3 / r["n_targets"] + r["view_ms"]
         assert r["n_targets"] == 4
-        assert r["recon_repeats"] == (1 if r["method"].startswith("opt-") else 2)
+        once = r["method"].startswith(("opt-", "refine-"))
+        assert r["recon_repeats"] == (1 if once else 2) and r["recon_timed_once"] == once
     # enhancement off: the score is the plain rasterizer's, reproduced here independently
     for label, views, budget in (("enh off", 4, None), ("2 views, enh off", 2, None)):
         idx = pick_inputs(scene, views)
@@ -145,6 +159,9 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
             expected = float(psnr(rgb, scene.images[r["target"]]))
             assert r["psnr"] == pytest.approx(expected, abs=1e-4) and r["gaussians"] == len(g)
             assert r["psnr_raw"] == r["psnr"] and r["dtype"] == "-"
+    # refinement starts from the base point's pruned Gaussians and keeps their count
+    base_n = {r["gaussians"] for r in rows if r["point"] == "base"}
+    assert {r["gaussians"] for r in rows if r["point"] == "refine 4"} == base_n
     enhanced = [r for r in rows if r["point"] == "base"]
     assert any(r["psnr"] != r["psnr_raw"] for r in enhanced)  # the improver changed something
     summary = pareto.summarise(rows)
@@ -157,6 +174,7 @@ def test_run_writes_table_json_plot_and_never_clobbers(data, model, tmp_path, mo
     out = tmp_path / "points"
     argv = ["--data", str(data), "--out", str(out)]
     argv += "--sizes 32 --views 2,4 --budgets auto --dtypes fp32 --repeats 2 --opt-steps 5".split()
+    argv += ["--refine-steps", ""]
     assert points.run(parse(*argv)) == 0
     printed = capsys.readouterr().out
     assert "### interpolation targets" in printed and "### extrapolation targets" in printed

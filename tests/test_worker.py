@@ -228,6 +228,35 @@ def test_cancelled_progress_stops_before_any_output(scene, tmp_path: Path) -> No
     assert list(tmp_path.iterdir()) == []
 
 
+def test_reconstruct_refines_with_progress_and_esc_mid_refinement(scene, tmp_path: Path) -> None:
+    folder, cams = scene
+    params = {"frames": _frames(folder, cams, [0, 2]), "device": "cpu", "near": 0.5, "far": 10.0}
+    seen: list[tuple[float, str]] = []
+    plain = run_task("reconstruct", params)
+    res = run_task(
+        "reconstruct", {**params, "refine_steps": 3}, Progress(lambda f, m: seen.append((f, m)))
+    )
+    refining = [(f, m) for f, m in seen if m.startswith("refining against the inputs: step")]
+    assert [m.split(",")[0] for _, m in refining] == [
+        f"refining against the inputs: step {k}/3" for k in (1, 2, 3)
+    ]
+    assert all(0.8 <= f <= 0.9 for f, _ in refining)
+    assert res["count"] == plain["count"] and res["seconds"]["refine"] > 0
+    assert not np.array_equal(res["arrays"]["position"], plain["arrays"]["position"])
+    with pytest.raises(ValueError, match="not both"):
+        run_task("reconstruct", {**params, "refine_steps": 3, "refine_seconds": 1.0})
+
+    def esc_after_two_steps(fraction: float, message: str) -> None:
+        if message.startswith("refining against the inputs: step 2"):
+            progress.cancel.set()  # Esc while refining
+
+    progress = Progress(esc_after_two_steps)
+    ply = tmp_path / "g.ply"
+    with pytest.raises(Cancelled):
+        run_task("reconstruct", {**params, "refine_seconds": 30.0, "ply": str(ply)}, progress)
+    assert not ply.exists()  # a cancelled step creates nothing
+
+
 def test_missing_input_image_is_named(scene) -> None:
     folder, cams = scene
     frames = _frames(folder, cams, [0, 2])

@@ -2,7 +2,9 @@
 
 What the feed-forward generator replaces: fit Gaussians to the few input images by gradient
 descent through :func:`prosplat.render`, as 3DGS (Kerbl et al. 2023) does, with its learning
-rates and loss, ``(1 - λ)·L1 + λ·(1 - SSIM)``, λ = 0.2, one random input view per step.
+rates and loss, ``(1 - λ)·L1 + λ·(1 - SSIM)``, λ = 0.2, one input view per step. The loop
+is :func:`prosplat.refine.refine` with its regularisers off, started from plane-sweep stereo
+or random points instead of the generator's Gaussians.
 
 Deliberate simplifications, because the point is a fair sparse-view baseline, not a full 3DGS:
 
@@ -22,38 +24,17 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.baselines.plane_sweep import _check_inputs, plane_sweep_gaussians
 from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
-from prosplat.metrics import ssim
+from prosplat.refine import LearningRates, RefineOptions, photometric_loss, refine
 from prosplat.render import render
 
 __all__ = ["LearningRates", "optimize_gaussians", "random_init"]
-
-SSIM_LAMBDA = 0.2
-
-
-@dataclass(frozen=True)
-class LearningRates:
-    """Adam learning rates per parameter group (3DGS defaults).
-
-    ``means`` is multiplied by the scene extent and decays to ``means * means_final_ratio``;
-    ``sh_rest`` applies to SH bands above degree 0 (3DGS: ``sh / 20``).
-    """
-
-    means: float = 1.6e-4
-    means_final_ratio: float = 0.01
-    sh: float = 2.5e-3
-    sh_rest: float = 2.5e-3 / 20
-    opacity: float = 5e-2
-    scale: float = 5e-3
-    rotation: float = 1e-3
 
 
 def random_init(
@@ -95,48 +76,6 @@ def random_init(
         scale[:, None].expand(-1, 3).clone(),
         torch.full((n_points,), 0.1, dtype=torch.float64),
     ).to(device=images.device, dtype=dtype)
-
-
-def _scene_extent(cameras: list[Camera], means: Tensor) -> float:
-    centers = torch.stack([c.center.to(torch.float64).cpu() for c in cameras])
-    mid = centers.mean(0)
-    cam_radius = float((centers - mid).norm(dim=1).max())
-    if len(means):
-        point_dist = float((means.detach().cpu().to(torch.float64) - mid).norm(dim=1).median())
-    else:
-        point_dist = 0.0
-    extent = 1.1 * max(cam_radius, 0.5 * point_dist)
-    return extent if extent > 0 else 1.0
-
-
-def _photometric_loss(pred: Tensor, target: Tensor) -> Tensor:
-    """3DGS loss: (1 - λ)·L1 + λ·(1 - SSIM), λ = 0.2."""
-    l1 = (pred - target).abs().mean()
-    return (1 - SSIM_LAMBDA) * l1 + SSIM_LAMBDA * (1 - ssim(pred, target))
-
-
-class _Params(torch.nn.Module):
-    """Raw (unconstrained) 3DGS parameters; :meth:`gaussians` activates them."""
-
-    def __init__(self, g: Gaussians) -> None:
-        super().__init__()
-        eps = 1e-6
-        self.means = torch.nn.Parameter(g.means.detach().clone())
-        self.log_scales = torch.nn.Parameter(torch.log(g.scales.detach().clamp_min(1e-8)))
-        o = g.opacities.detach().clamp(eps, 1 - eps)
-        self.logit_opacities = torch.nn.Parameter(torch.log(o) - torch.log1p(-o))
-        self.quats = torch.nn.Parameter(F.normalize(g.quats.detach(), dim=1).clone())
-        self.sh_dc = torch.nn.Parameter(g.sh.detach()[:, :1].clone())
-        self.sh_rest = torch.nn.Parameter(g.sh.detach()[:, 1:].clone())
-
-    def gaussians(self) -> Gaussians:
-        return Gaussians(
-            self.means,
-            self.quats,
-            torch.exp(self.log_scales),
-            torch.sigmoid(self.logit_opacities),
-            torch.cat([self.sh_dc, self.sh_rest], dim=1),
-        )
 
 
 def _check_images_size(images: Tensor) -> None:
@@ -227,60 +166,50 @@ def optimize_gaussians(
         g0, _, _ = plane_sweep_gaussians(images, cameras, near, far, n_depths)
     else:
         g0 = random_init(images, cameras, near, far, n_random or v * h * w, gen)
-    params = _Params(g0.with_sh_degree(sh_degree))
-    extent = _scene_extent(cameras, g0.means)
-    lr_means = lr.means * extent
-    groups = [
-        {"params": [params.means], "lr": lr_means},
-        {"params": [params.sh_dc], "lr": lr.sh},
-        {"params": [params.sh_rest], "lr": lr.sh_rest},
-        {"params": [params.logit_opacities], "lr": lr.opacity},
-        {"params": [params.log_scales], "lr": lr.scale},
-        {"params": [params.quats], "lr": lr.rotation},
-    ]
-    opt = torch.optim.Adam(groups, eps=1e-15)  # 3DGS's eps: raw gradients here are tiny
+    g0 = g0.with_sh_degree(sh_degree)
+    bg = None if background is None else tuple(float(x) for x in background)
 
-    def mean_loss() -> float:
+    def mean_loss(g) -> float:
         with torch.no_grad():
-            g = params.gaussians()
             return float(
                 sum(
-                    _photometric_loss(render(g, c, background).rgb, images[i])
+                    photometric_loss(render(g, c, background).rgb, images[i])
                     for i, c in enumerate(cameras)
                 )
                 / v
             )
 
-    initial = mean_loss()
-    history: list[float] = []
+    initial = mean_loss(g0)
     from tqdm import tqdm
 
-    loop_start = time.perf_counter()
-    bar = tqdm(range(int(steps)), desc="optimise 3DGS", unit="step", disable=not progress)
-    for step in bar:
-        frac = step / max(int(steps) - 1, 1)
-        opt.param_groups[0]["lr"] = lr_means * lr.means_final_ratio**frac  # log-linear decay
-        i = int(torch.randint(0, v, (1,), generator=gen))
-        out = render(params.gaussians(), cameras[i], background)
-        loss = _photometric_loss(out.rgb, images[i])
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        history.append(float(loss.detach()))
-        if progress:
-            bar.set_postfix(loss=f"{history[-1]:.4f}")
-    loop_time = time.perf_counter() - loop_start
-    final = mean_loss()
+    bar = tqdm(total=int(steps), desc="optimise 3DGS", unit="step", disable=not progress)
+
+    def report(step: int, total, loss: float) -> None:
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss:.4f}")
+
+    options = RefineOptions.unregularised(lr=lr, sh_degree=sh_degree, background=bg)
+    result = refine(
+        g0,
+        images,
+        cameras,
+        steps=int(steps),
+        seed=seed,
+        progress=report if progress else None,
+        options=options,
+    )
+    bar.close()
+    final = mean_loss(result.gaussians)
     wall = time.perf_counter() - start
     stats = {
         "wall_time_s": wall,
-        "s_per_step": loop_time / max(int(steps), 1),
+        "s_per_step": result.stats.seconds / max(int(steps), 1),
         "steps": int(steps),
         "initial_loss": initial,
         "final_loss": final,
-        "loss_history": history,
+        "loss_history": result.stats.loss_history,
         "n_gaussians": len(g0),
         "init": init,
-        "scene_extent": extent,
+        "scene_extent": result.stats.scene_extent,
     }
-    return params.gaussians().detach(), stats
+    return result.gaussians, stats

@@ -27,6 +27,7 @@ FAMILY_STYLE: dict[str, tuple[str, str]] = {
     "budget": ("tab:purple", "D"),
     "dtype": ("tab:brown", "P"),
     "optimise": ("tab:red", "X"),
+    "refine": ("tab:cyan", "h"),
     "plane sweep": ("tab:gray", "^"),
     "reference": ("tab:cyan", "d"),
 }

@@ -1,15 +1,17 @@
 """``prosplat bench points``: time per view against PSNR / SSIM / LPIPS over operating points.
 
 An operating point is (input resolution, input views, Gaussian budget, enhancement, stage-2
-dtype) for the generator, or a per-scene optimisation baseline at some step count. The full
-factorial is too slow to be useful, so one axis is varied at a time around a base point
-(64 px, 4 views, automatic budget, enhancement on, fp32), plus enhancement off at every view
-count. Every point runs in the same process on the same scenes, and repeats are interleaved
-across points, so ratios between points are fair even on a busy machine.
+dtype, refinement steps) for the generator, or a per-scene optimisation baseline at some step
+count. The full factorial is too slow to be useful, so one axis is varied at a time around a
+base point (64 px, 4 views, automatic budget, enhancement on, fp32, no refinement), plus
+enhancement off at every view count. Every point runs in the same process on the same
+scenes, and repeats are interleaved across points, so ratios between points are fair even on
+a busy machine.
 
 Per scene and point the reconstruction (+ pruning) is timed ``--repeats`` times and every
 target view's render (+ MORI + enhancement) ``--repeats`` times; medians are kept. Points that
-share a reconstruction (same method, size, views, budget) share its timing. Optimisation is
+share a reconstruction (same method, size, views, budget) share its timing. Optimisation and
+refinement (generator + budget + ``prosplat.refine`` for N steps, at the base point) are
 timed once (seconds to minutes per scene). Outputs are deterministic, so quality is scored on
 one run. Writes ``points.json`` (every per-view row), ``points.md`` and ``pareto.png``.
 """
@@ -23,7 +25,7 @@ import statistics
 import sys
 import time
 from collections import defaultdict
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -39,10 +41,12 @@ from prosplat.evaluate import (
     pick_inputs,
     plane_sweep_method,
     reference_scores,
+    refine_method,
     score_view,
 )
 from prosplat.metrics import psnr
 
+TIMED_ONCE = ("opt-", "refine-")  # methods too slow to repeat: timed on one run
 DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
 REFERENCE_LABELS = {"flat": "flat colour", "paste": "MORI paste", "true-depth": "true depth"}
 RENDER_HINT = (
@@ -56,7 +60,7 @@ class Point:
 
     family: str
     label: str
-    method: str  # "generator", "plane sweep" or "opt-STEPS"
+    method: str  # "generator", "plane sweep", "opt-STEPS" or "refine-STEPS"
     size: int
     views: int
     budget: int | float | None
@@ -77,6 +81,7 @@ class Axes:
     dtypes: list[str]
     opt_steps: list[int]
     opt_views: int
+    refine_steps: list[int] = field(default_factory=list)
 
 
 def budget_name(budget: int | float | None) -> str:
@@ -114,6 +119,7 @@ def parse_axes(args: argparse.Namespace) -> Axes:
         dtypes=[d.strip() for d in str(args.dtypes).split(",") if d.strip()],
         opt_steps=_ints(args.opt_steps, "opt-steps"),
         opt_views=int(args.opt_views),
+        refine_steps=_ints(getattr(args, "refine_steps", ""), "refine-steps"),
     )
     for e in (e.strip() for e in str(args.enhance).split(",") if e.strip()):
         if e not in ("on", "off"):
@@ -129,6 +135,8 @@ def parse_axes(args: argparse.Namespace) -> Axes:
         raise ValueError(f"--dtypes: {bad} not among {sorted(DTYPES)}")
     if bad := [s for s in axes.opt_steps if s < 1]:
         raise ValueError(f"--opt-steps: {bad} must be >= 1")
+    if bad := [s for s in axes.refine_steps if s < 0]:
+        raise ValueError(f"--refine-steps: {bad} must be >= 0 (0 is the base point)")
     return axes
 
 
@@ -158,6 +166,10 @@ def build_points(axes: Axes, plane_sweep: bool = False) -> list[Point]:
         if (key := replace(p, family="", label="")) not in seen:
             seen.add(key)
             points.append(p)
+    for n in axes.refine_steps:  # 0 is the base point itself
+        if n > 0:
+            ref = dict(family="refine", label=f"refine {n}", method=f"refine-{n}")
+            points.append(replace(base, **ref))
     if plane_sweep:
         sweep = dict(family="plane sweep", label="plane sweep", method="plane sweep")
         points.append(replace(base, enhance=False, dtype="fp32", **sweep))
@@ -228,6 +240,9 @@ def method_of(model, p: Point) -> Method:
         return generator_method(model)
     if p.method == "plane sweep":
         return plane_sweep_method()
+    if p.method.startswith("refine-"):
+        steps = int(p.method.removeprefix("refine-"))
+        return refine_method(model, steps=steps, budget=p.budget)
     return optimize_method(int(p.method.removeprefix("opt-")))
 
 
@@ -257,7 +272,7 @@ def measure_scene(
     for r in range(repeats):  # interleaved: every point once per repeat
         for pi, p in enumerate(points):
             key = p.recon_key
-            if len(recon_s[key]) <= r and not (r and p.method.startswith("opt-")):
+            if len(recon_s[key]) <= r and not (r and p.method.startswith(TIMED_ONCE)):
                 inp = inputs[p.size, p.views]
                 gaussians[key], s = reconstruct(method_of(model, p), inp, p.budget)
                 recon_s[key].append(s)
@@ -280,7 +295,7 @@ def measure_scene(
             budget="-" if p.method.startswith("opt-") else budget_name(p.budget),
             dtype=p.dtype if p.enhance else "-",
             recon_repeats=len(recon_s[p.recon_key]),
-            recon_timed_once=p.method.startswith("opt-"),
+            recon_timed_once=p.method.startswith(TIMED_ONCE),
         )
         for t, ti in enumerate(scene.target_indices):
             gt, v, ms = targets[p.size][0][t], views[pi, t], statistics.median(view_ms[pi, t])
@@ -305,6 +320,10 @@ AXIS_FLAGS = {
     "--enhance": ("off,on", "stage-2 enhancement, also varied at every view count; base on"),
     "--dtypes": ("fp32,bf16", "stage-2 dtypes (bf16 = autocast); base fp32"),
     "--opt-steps": ("300,1000,3000", "per-scene optimisation step counts ('' for none)"),
+    "--refine-steps": (
+        "50,100,300,1000",
+        "generator + refinement step counts at the base point ('' for none)",
+    ),
 }
 
 
@@ -386,7 +405,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     first = scenes[0][1]  # warm-up on one target: first-call costs stay out of the timings
     first = first.select(first.input_indices + first.target_indices[:1])
-    measure_scene(model, first, [p for p in points if not p.method.startswith("opt-")], 1, "")
+    measure_scene(model, first, [p for p in points if not p.method.startswith(TIMED_ONCE)], 1, "")
     rows = []
     with tqdm(total=len(scenes) * len(points) * args.repeats, desc="scene x point x repeat") as bar:
         for split, sc in scenes:

@@ -63,7 +63,8 @@ def render(
         gaussians: N Gaussians (float32 or float64).
         camera: a pinhole :class:`~prosplat.Camera` without skew.
         background: [3] RGB behind the Gaussians (default black).
-        backend: "auto", "cpu" or "gsplat".
+        backend: "auto", "cpu", "cpu-fused" (the CPU path with the projection as one C++
+            kernel, :mod:`prosplat.render.fused`, checked against "cpu") or "gsplat".
     """
     if not isinstance(gaussians, Gaussians):
         raise ValueError(f"render expects prosplat.Gaussians, got {type(gaussians).__name__}")
@@ -77,19 +78,22 @@ def render(
         from prosplat.render.gsplat_backend import render_gsplat
 
         return render_gsplat(gaussians, camera, bg)
-    if backend != "cpu":
-        raise ValueError(f"unknown backend {backend!r}; use 'auto', 'cpu' or 'gsplat'")
-    return _render_cpu(gaussians, camera, bg)
+    if backend not in ("cpu", "cpu-fused"):
+        raise ValueError(f"unknown backend {backend!r}; use 'auto', 'cpu', 'cpu-fused' or 'gsplat'")
+    return _render_cpu(gaussians, camera, bg, fused=backend == "cpu-fused")
 
 
-def _render_cpu(gaussians: Gaussians, camera: Camera, bg: Tensor) -> RenderOutput:
+def _render_cpu(
+    gaussians: Gaussians, camera: Camera, bg: Tensor, fused: bool = False
+) -> RenderOutput:
     from prosplat.render.cpu import composite
+    from prosplat.render.fused import project_gaussians_fused
 
     device = gaussians.device
     if device.type != "cpu":
         gaussians = gaussians.to("cpu")
         bg = bg.cpu()
-    proj = project_gaussians(gaussians, camera)
+    proj = (project_gaussians_fused if fused else project_gaussians)(gaussians, camera)
     idx = torch.nonzero(proj.valid).squeeze(1)
     order = idx[torch.argsort(proj.depths.detach()[idx], stable=True)]
     feats = torch.cat([proj.colors, proj.depths[:, None]], dim=1)  # [N,4]

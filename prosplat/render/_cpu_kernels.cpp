@@ -98,6 +98,25 @@ void parallel_tiles(int64_t n_tiles, int n_threads, Fn fn) {
   for (auto& th : pool) th.join();
 }
 
+// Thread tid takes tiles tid, tid + n, tid + 2n, ...: a fixed split, so each thread's
+// gradient buffer sums the same tiles in the same order on every run (the backward pass is
+// then bitwise reproducible for a thread count, which seeded refinement relies on).
+template <typename Fn>
+void parallel_tiles_static(int64_t n_tiles, int n_threads, Fn fn) {
+  n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
+  auto worker = [&](int tid) {
+    for (int64_t t = tid; t < n_tiles; t += n_threads) fn(t, tid);
+  };
+  if (n_threads == 1) {
+    worker(0);
+    return;
+  }
+  std::vector<std::thread> pool;
+  for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker, i);
+  worker(0);
+  for (auto& th : pool) th.join();
+}
+
 template <typename T>
 void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means2d, const T* conics,
              const T* opacities, const T* feats, const int32_t* boxes, const int64_t* order, T* out,
@@ -181,7 +200,7 @@ void backward(int64_t n_sorted, int n_feat, int width, int height, const T* mean
   const int64_t n_pix = int64_t(width) * height;
   const int stride = 6 + n_feat;
   const T min_alpha = T(1) / T(255);
-  parallel_tiles(int64_t(tl.tiles_x) * tl.tiles_y, n_threads, [&](int64_t tile, int tid) {
+  parallel_tiles_static(int64_t(tl.tiles_x) * tl.tiles_y, n_threads, [&](int64_t tile, int tid) {
     T* gbuf = grads + int64_t(tid) * n_gauss * stride;
     const TileRect r = tile_rect(tl, tile, width, height);
     const int x0 = r.x0, y0 = r.y0, x1 = r.x1, y1 = r.y1;
@@ -263,6 +282,167 @@ void backward(int64_t n_sorted, int n_feat, int width, int height, const T* mean
   });
 }
 
+
+// ---- EWA projection, fused (prosplat/render/projection.py is its twin) ----------------------
+// Per Gaussian, in double precision: camera-space mean, pixel mean, the 2D conic of
+// M Mᵀ + 0.3 I with M = J·R_cam·R_q·diag(s) (J at x/z, y/z clamped to 1.3x the field of
+// view), the dilated a, c (for the pixel boxes) and z. The backward pass recomputes the
+// forward per Gaussian and walks it back by hand. cam = R (9, row-major), t (3), fx, fy, cx,
+// cy, x/z low, x/z high, y/z low, y/z high, near, dilation.
+struct ProjCam {
+  double R[9], t[3], fx, fy, cx, cy, lox, hix, loy, hiy, near, dil;
+  explicit ProjCam(const double* c) {
+    for (int i = 0; i < 9; ++i) R[i] = c[i];
+    for (int i = 0; i < 3; ++i) t[i] = c[9 + i];
+    fx = c[12]; fy = c[13]; cx = c[14]; cy = c[15];
+    lox = c[16]; hix = c[17]; loy = c[18]; hiy = c[19]; near = c[20]; dil = c[21];
+  }
+};
+
+struct ProjState {
+  double x, y, z, inv_z, xz, yz, xzc, yzc, ux, uy;
+  bool front, inx, iny;
+  double qn[4], qlen, rq[3][3], v0[3], v1[3], P0[3], P1[3], r0[3], r1[3], s[3];
+  double a0, c0, b, k[3], det;
+};
+
+inline void proj_state(const ProjCam& c, const double* m, const double* q, const double* sc,
+                       ProjState& st) {
+  st.x = c.R[0] * m[0] + c.R[1] * m[1] + c.R[2] * m[2] + c.t[0];
+  st.y = c.R[3] * m[0] + c.R[4] * m[1] + c.R[5] * m[2] + c.t[1];
+  st.z = c.R[6] * m[0] + c.R[7] * m[1] + c.R[8] * m[2] + c.t[2];
+  st.front = st.z >= c.near;
+  st.inv_z = 1.0 / (st.front ? st.z : 1.0);
+  st.xz = st.x * st.inv_z;
+  st.yz = st.y * st.inv_z;
+  st.inx = st.xz >= c.lox && st.xz <= c.hix;
+  st.iny = st.yz >= c.loy && st.yz <= c.hiy;
+  st.xzc = std::min(std::max(st.xz, c.lox), c.hix);
+  st.yzc = std::min(std::max(st.yz, c.loy), c.hiy);
+  st.ux = c.fx * st.inv_z;
+  st.uy = c.fy * st.inv_z;
+  for (int k = 0; k < 3; ++k) {
+    st.v0[k] = st.ux * (c.R[k] - st.xzc * c.R[6 + k]);
+    st.v1[k] = st.uy * (c.R[3 + k] - st.yzc * c.R[6 + k]);
+  }
+  st.qlen = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  for (int i = 0; i < 4; ++i) st.qn[i] = q[i] / st.qlen;
+  const double w = st.qn[0], x = st.qn[1], y = st.qn[2], z = st.qn[3];
+  st.rq[0][0] = 1 - 2 * (y * y + z * z); st.rq[0][1] = 2 * (x * y - w * z); st.rq[0][2] = 2 * (x * z + w * y);
+  st.rq[1][0] = 2 * (x * y + w * z); st.rq[1][1] = 1 - 2 * (x * x + z * z); st.rq[1][2] = 2 * (y * z - w * x);
+  st.rq[2][0] = 2 * (x * z - w * y); st.rq[2][1] = 2 * (y * z + w * x); st.rq[2][2] = 1 - 2 * (x * x + y * y);
+  for (int j = 0; j < 3; ++j) {
+    st.s[j] = sc[j];
+    st.P0[j] = st.v0[0] * st.rq[0][j] + st.v0[1] * st.rq[1][j] + st.v0[2] * st.rq[2][j];
+    st.P1[j] = st.v1[0] * st.rq[0][j] + st.v1[1] * st.rq[1][j] + st.v1[2] * st.rq[2][j];
+    st.r0[j] = st.P0[j] * st.s[j];
+    st.r1[j] = st.P1[j] * st.s[j];
+  }
+  st.a0 = st.r0[0] * st.r0[0] + st.r0[1] * st.r0[1] + st.r0[2] * st.r0[2];
+  st.c0 = st.r1[0] * st.r1[0] + st.r1[1] * st.r1[1] + st.r1[2] * st.r1[2];
+  st.b = st.r0[0] * st.r1[0] + st.r0[1] * st.r1[1] + st.r0[2] * st.r1[2];
+  st.k[0] = st.r0[1] * st.r1[2] - st.r0[2] * st.r1[1];
+  st.k[1] = st.r0[2] * st.r1[0] - st.r0[0] * st.r1[2];
+  st.k[2] = st.r0[0] * st.r1[1] - st.r0[1] * st.r1[0];
+  st.det = st.k[0] * st.k[0] + st.k[1] * st.k[1] + st.k[2] * st.k[2] + c.dil * (st.a0 + st.c0) +
+           c.dil * c.dil;
+}
+
+void project_forward(int64_t n, const double* means, const double* quats, const double* scales,
+                     const double* cam, double* means2d, double* conics, double* depth, double* ac,
+                     int n_threads) {
+  const ProjCam c(cam);
+  const int64_t chunk = 4096, n_chunks = (n + chunk - 1) / chunk;
+  parallel_tiles_static(n_chunks, n_threads, [&](int64_t ch, int) {
+    ProjState st;
+    for (int64_t g = ch * chunk; g < std::min(n, (ch + 1) * chunk); ++g) {
+      proj_state(c, means + 3 * g, quats + 4 * g, scales + 3 * g, st);
+      means2d[2 * g] = c.fx * st.xz + c.cx;
+      means2d[2 * g + 1] = c.fy * st.yz + c.cy;
+      const double a = st.a0 + c.dil, cc = st.c0 + c.dil, inv_det = 1.0 / st.det;
+      conics[3 * g] = cc * inv_det;
+      conics[3 * g + 1] = -st.b * inv_det;
+      conics[3 * g + 2] = a * inv_det;
+      depth[g] = st.z;
+      ac[2 * g] = a;
+      ac[2 * g + 1] = cc;
+    }
+  });
+}
+
+void project_backward(int64_t n, const double* means, const double* quats, const double* scales,
+                      const double* cam, const double* g_m2d, const double* g_con,
+                      const double* g_depth, double* g_means, double* g_quats, double* g_scales,
+                      int n_threads) {
+  const ProjCam c(cam);
+  const int64_t chunk = 4096, n_chunks = (n + chunk - 1) / chunk;
+  parallel_tiles_static(n_chunks, n_threads, [&](int64_t ch, int) {
+    ProjState st;
+    for (int64_t g = ch * chunk; g < std::min(n, (ch + 1) * chunk); ++g) {
+      proj_state(c, means + 3 * g, quats + 4 * g, scales + 3 * g, st);
+      const double a = st.a0 + c.dil, cc = st.c0 + c.dil, inv_det = 1.0 / st.det;
+      const double gA = g_con[3 * g], gB = g_con[3 * g + 1], gC = g_con[3 * g + 2];
+      // conic = (c, -b, a) / det
+      const double g_det = -(gA * cc - gB * st.b + gC * a) * inv_det * inv_det;
+      const double g_a0 = gC * inv_det + c.dil * g_det;
+      const double g_c0 = gA * inv_det + c.dil * g_det;
+      const double g_b = -gB * inv_det;
+      double gk[3];
+      for (int i = 0; i < 3; ++i) gk[i] = 2 * st.k[i] * g_det;
+      double gr0[3], gr1[3];
+      for (int j = 0; j < 3; ++j) {
+        gr0[j] = 2 * st.r0[j] * g_a0 + st.r1[j] * g_b;
+        gr1[j] = 2 * st.r1[j] * g_c0 + st.r0[j] * g_b;
+      }
+      // k0 = r0_1 r1_2 - r0_2 r1_1; k1 = r0_2 r1_0 - r0_0 r1_2; k2 = r0_0 r1_1 - r0_1 r1_0
+      gr0[1] += gk[0] * st.r1[2]; gr1[2] += gk[0] * st.r0[1];
+      gr0[2] -= gk[0] * st.r1[1]; gr1[1] -= gk[0] * st.r0[2];
+      gr0[2] += gk[1] * st.r1[0]; gr1[0] += gk[1] * st.r0[2];
+      gr0[0] -= gk[1] * st.r1[2]; gr1[2] -= gk[1] * st.r0[0];
+      gr0[0] += gk[2] * st.r1[1]; gr1[1] += gk[2] * st.r0[0];
+      gr0[1] -= gk[2] * st.r1[0]; gr1[0] -= gk[2] * st.r0[1];
+      double gv0[3] = {0, 0, 0}, gv1[3] = {0, 0, 0}, grq[3][3];
+      for (int j = 0; j < 3; ++j) {
+        g_scales[3 * g + j] = gr0[j] * st.P0[j] + gr1[j] * st.P1[j];
+        const double gP0 = gr0[j] * st.s[j], gP1 = gr1[j] * st.s[j];
+        for (int i = 0; i < 3; ++i) {
+          gv0[i] += gP0 * st.rq[i][j];
+          gv1[i] += gP1 * st.rq[i][j];
+          grq[i][j] = gP0 * st.v0[i] + gP1 * st.v1[i];
+        }
+      }
+      // v0_k = ux (R0k - xzc R2k), v1_k = uy (R1k - yzc R2k)
+      double g_ux = 0, g_uy = 0, g_xzc = 0, g_yzc = 0;
+      for (int k = 0; k < 3; ++k) {
+        g_ux += gv0[k] * (c.R[k] - st.xzc * c.R[6 + k]);
+        g_uy += gv1[k] * (c.R[3 + k] - st.yzc * c.R[6 + k]);
+        g_xzc -= gv0[k] * st.ux * c.R[6 + k];
+        g_yzc -= gv1[k] * st.uy * c.R[6 + k];
+      }
+      double g_xz = c.fx * g_m2d[2 * g] + (st.inx ? g_xzc : 0.0);
+      double g_yz = c.fy * g_m2d[2 * g + 1] + (st.iny ? g_yzc : 0.0);
+      double g_inv_z = c.fx * g_ux + c.fy * g_uy + g_xz * st.x + g_yz * st.y;
+      const double gx = g_xz * st.inv_z, gy = g_yz * st.inv_z;
+      double gz = g_depth[g] + (st.front ? -g_inv_z * st.inv_z * st.inv_z : 0.0);
+      for (int i = 0; i < 3; ++i)
+        g_means[3 * g + i] = c.R[i] * gx + c.R[3 + i] * gy + c.R[6 + i] * gz;
+      // rotation entries -> normalised quaternion -> quaternion
+      const double w = st.qn[0], x = st.qn[1], y = st.qn[2], z = st.qn[3];
+      const double (*G)[3] = grq;
+      double gq[4];
+      gq[0] = 2 * (-z * G[0][1] + y * G[0][2] + z * G[1][0] - x * G[1][2] - y * G[2][0] + x * G[2][1]);
+      gq[1] = 2 * (y * G[0][1] + z * G[0][2] + y * G[1][0] - 2 * x * G[1][1] - w * G[1][2] +
+                   z * G[2][0] + w * G[2][1] - 2 * x * G[2][2]);
+      gq[2] = 2 * (-2 * y * G[0][0] + x * G[0][1] + w * G[0][2] + x * G[1][0] + z * G[1][2] -
+                   w * G[2][0] + z * G[2][1] - 2 * y * G[2][2]);
+      gq[3] = 2 * (-2 * z * G[0][0] - w * G[0][1] + x * G[0][2] + w * G[1][0] - 2 * z * G[1][1] +
+                   y * G[1][2] + x * G[2][0] + y * G[2][1]);
+      const double dot = gq[0] * w + gq[1] * x + gq[2] * y + gq[3] * z;
+      for (int i = 0; i < 4; ++i) g_quats[4 * g + i] = (gq[i] - st.qn[i] * dot) / st.qlen;
+    }
+  });
+}
+
 }  // namespace
 
 #define PROSPLAT_EXPORT extern "C" __attribute__((visibility("default")))
@@ -286,5 +466,21 @@ void backward(int64_t n_sorted, int n_feat, int width, int height, const T* mean
 
 PROSPLAT_DEFINE(float, f32)
 PROSPLAT_DEFINE(double, f64)
+
+PROSPLAT_EXPORT void prosplat_project_forward_f64(int64_t n, const double* means,
+                                                  const double* quats, const double* scales,
+                                                  const double* cam, double* means2d,
+                                                  double* conics, double* depth, double* ac,
+                                                  int n_threads) {
+  project_forward(n, means, quats, scales, cam, means2d, conics, depth, ac, n_threads);
+}
+
+PROSPLAT_EXPORT void prosplat_project_backward_f64(
+    int64_t n, const double* means, const double* quats, const double* scales, const double* cam,
+    const double* g_m2d, const double* g_con, const double* g_depth, double* g_means,
+    double* g_quats, double* g_scales, int n_threads) {
+  project_backward(n, means, quats, scales, cam, g_m2d, g_con, g_depth, g_means, g_quats,
+                   g_scales, n_threads);
+}
 
 PROSPLAT_EXPORT int prosplat_abi_version() { return 1; }

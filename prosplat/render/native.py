@@ -81,6 +81,10 @@ def _declare(lib: ctypes.CDLL) -> None:
         bwd = getattr(lib, f"prosplat_backward_{suffix}")
         bwd.argtypes = [i64, i32, i32, i32, p, p, p, p, p, p, p, p, p, p, p, i64, i32]
         bwd.restype = None
+    lib.prosplat_project_forward_f64.argtypes = [i64] + [p] * 8 + [i32]
+    lib.prosplat_project_forward_f64.restype = None
+    lib.prosplat_project_backward_f64.argtypes = [i64] + [p] * 10 + [i32]
+    lib.prosplat_project_backward_f64.restype = None
     lib.prosplat_abi_version.restype = ctypes.c_int
     if lib.prosplat_abi_version() != 1:
         raise RuntimeError(

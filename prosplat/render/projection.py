@@ -79,6 +79,33 @@ def view_directions(means: Tensor, center: Tensor) -> Tensor:
     )
 
 
+@torch.no_grad()
+def pixel_boxes(
+    means2d: Tensor, a: Tensor, c: Tensor, in_front: Tensor, opacities: Tensor, W: int, H: int
+) -> tuple[Tensor, Tensor]:
+    """Inclusive pixel boxes [N,4] int32 (x0, x1, y0, y1) outside which a Gaussian's alpha is
+    < 1/255, and whether each is drawn at all; ``a``, ``c``: the dilated 2D covariance diagonal
+    (float64)."""
+    f64 = torch.float64
+    # alpha >= 1/255 needs dᵀ Σ⁻¹ d <= r² = 2 ln(255 o); that ellipse's half-widths are
+    # r·sqrt(Σ_xx) and r·sqrt(Σ_yy). A small margin covers float32 rounding in the kernel.
+    o = opacities.detach().to(f64)
+    visible_o = o >= MIN_ALPHA
+    r2 = 2.0 * torch.log((255.0 * o).clamp_min(1.0))
+    half_w = torch.sqrt(r2 * a) * (1 + 1e-4) + 1e-3
+    half_h = torch.sqrt(r2 * c) * (1 + 1e-4) + 1e-3
+    u, v = means2d[:, 0].detach().to(f64), means2d[:, 1].detach().to(f64)
+    x0 = torch.ceil(u - half_w - 0.5).clamp(0, W)
+    x1 = torch.floor(u + half_w - 0.5).clamp(-1, W - 1)
+    y0 = torch.ceil(v - half_h - 0.5).clamp(0, H)
+    y1 = torch.floor(v + half_h - 0.5).clamp(-1, H - 1)
+    finite = torch.isfinite(half_w) & torch.isfinite(half_h)
+    valid = in_front & visible_o & (x0 <= x1) & (y0 <= y1) & finite
+    boxes = torch.stack([x0, x1, y0, y1], dim=-1)
+    boxes = torch.where(valid[:, None], boxes, boxes.new_tensor([1.0, 0.0, 1.0, 0.0]))
+    return boxes.to(torch.int32).contiguous(), valid
+
+
 def project_gaussians(gaussians: Gaussians, camera: Camera) -> ProjectedGaussians:
     """Project ``gaussians`` into ``camera`` (differentiable w.r.t. every Gaussian parameter).
 
@@ -129,24 +156,7 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> ProjectedGaussian
     conics = torch.stack([c * inv_det, -b * inv_det, a * inv_det], dim=-1)  # [N,3]
 
     opacities = gaussians.opacities
-    with torch.no_grad():
-        # alpha >= 1/255 needs dᵀ Σ⁻¹ d <= r² = 2 ln(255 o); that ellipse's half-widths are
-        # r·sqrt(Σ_xx) and r·sqrt(Σ_yy). A small margin covers float32 rounding in the kernel.
-        o = opacities.detach().to(f64)
-        visible_o = o >= MIN_ALPHA
-        r2 = 2.0 * torch.log((255.0 * o).clamp_min(1.0))
-        half_w = torch.sqrt(r2 * a) * (1 + 1e-4) + 1e-3
-        half_h = torch.sqrt(r2 * c) * (1 + 1e-4) + 1e-3
-        u, v = means2d[:, 0].detach(), means2d[:, 1].detach()
-        x0 = torch.ceil(u - half_w - 0.5).clamp(0, W)
-        x1 = torch.floor(u + half_w - 0.5).clamp(-1, W - 1)
-        y0 = torch.ceil(v - half_h - 0.5).clamp(0, H)
-        y1 = torch.floor(v + half_h - 0.5).clamp(-1, H - 1)
-        finite = torch.isfinite(half_w) & torch.isfinite(half_h)
-        valid = in_front & visible_o & (x0 <= x1) & (y0 <= y1) & finite
-        boxes = torch.stack([x0, x1, y0, y1], dim=-1)
-        boxes = torch.where(valid[:, None], boxes, boxes.new_tensor([1.0, 0.0, 1.0, 0.0]))
-        boxes = boxes.to(torch.int32)
+    boxes, valid = pixel_boxes(means2d, a, c, in_front, opacities, W, H)
 
     if gaussians.sh.shape[1] > 1:
         center = camera.center.to(device=device, dtype=out_dtype)
@@ -160,6 +170,6 @@ def project_gaussians(gaussians: Gaussians, camera: Camera) -> ProjectedGaussian
         depths=z.to(out_dtype),
         colors=colors,
         opacities=opacities,
-        boxes=boxes.contiguous(),
+        boxes=boxes,
         valid=valid,
     )

@@ -16,12 +16,14 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from prosplat.budget import prune_pixel_aligned
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import find_scenes
 from prosplat.data.scene import load_scene
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
+from prosplat.refine import refine
 from prosplat.render import render
 
 CURATED_FORMAT = "prosplat-curated"
@@ -32,9 +34,13 @@ METHODS = ("paper", "overlap")
 CuratedSet = dict[str, Tensor]
 
 
-def curate_scene(model, scene, views: Sequence[int]) -> dict[str, list[Tensor]]:
+def curate_scene(
+    model, scene, views: Sequence[int], refine_steps: int = 0, seed: int = 0
+) -> dict[str, list[Tensor]]:
     """Samples of one scene for each input-view count in ``views`` (counts above the scene's
-    input views are skipped)."""
+    input views are skipped). ``refine_steps > 0`` renders the refined scene instead (the
+    generator's Gaussians pruned to the automatic budget, then :func:`prosplat.refine.refine`
+    for that many steps with its default options), so stage 2 can learn refined renders."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -49,6 +55,12 @@ def curate_scene(model, scene, views: Sequence[int]) -> dict[str, list[Tensor]]:
         full = model.reconstruct_full(scene.images[idx], cams, near, far)
         gaussians = full.gaussians(0)
         input_depths = full.depths[0]  # [N,H,W] the generator's depth per input view
+        if refine_steps:
+            gaussians = prune_pixel_aligned(gaussians.detach(), input_depths, cams)[0]
+            gaussians = refine(
+                gaussians, scene.images[idx], cams, steps=refine_steps, seed=seed,
+                depths=input_depths,
+            ).gaussians  # fmt: skip
         for t in scene.target_indices:
             cam = scene.cameras[t]
             with torch.no_grad():
@@ -74,8 +86,12 @@ def curate(
     overwrite: bool = False,
     progress: bool = True,
     command: str = "",
+    refine_steps: int = 0,
 ) -> Path:
-    """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``."""
+    """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
+    ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`)."""
+    if int(refine_steps) != refine_steps or refine_steps < 0:
+        raise ValueError(f"refine_steps must be an integer >= 0 (0: off), got {refine_steps}")
     from tqdm import tqdm
 
     folders = find_scenes(root)
@@ -95,7 +111,7 @@ def curate(
                 "one image size per file"
             )
         size = hw
-        part = curate_scene(model, scene, views)
+        part = curate_scene(model, scene, views, refine_steps=refine_steps, seed=s)
         for k, v in part.items():
             cols.setdefault(k, []).extend(v)
         cols.setdefault("scene", []).extend([torch.tensor(s)] * len(part.get("render", [])))
@@ -108,6 +124,7 @@ def curate(
         "format": CURATED_FORMAT,
         "scenes": json.dumps([f.name for f in folders]),
         "views": json.dumps(list(views)),
+        "refine_steps": str(int(refine_steps)),
         "command": command,
     }
     return write_checkpoint(tensors, out, meta, overwrite)

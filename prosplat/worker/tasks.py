@@ -192,6 +192,9 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     g, _, stats = prune_pixel_aligned(g, out.depths[0].cpu(), cameras, budget=budget)
     if len(g) == 0:
         raise ValueError("the generator produced no visible Gaussians for these views")
+    t_refine = 0.0
+    if params.get("refine_steps") or params.get("refine_seconds"):
+        g, t_refine = _refine(params, g, images, cameras, out.depths[0].cpu(), progress)
     if params.get("ply"):
         from prosplat.ply import write_ply
 
@@ -200,9 +203,37 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     stats = {k: int(v) for k, v in stats.items()}
     return {
         "count": len(g), "sh_degree": g.sh_degree, "stats": stats, "size": [w, h],
-        "seconds": {"generator": t_gen, "total": time.perf_counter() - t0},
+        "seconds": {"generator": t_gen, "refine": t_refine, "total": time.perf_counter() - t0},
         "arrays": to_attributes(g),
     }  # fmt: skip
+
+
+def _refine(params: dict, g: Gaussians, images, cameras, depths, progress: Progress):
+    """Refine the pruned Gaussians against the inputs (``refine_steps`` or ``refine_seconds``,
+    0/None: off; not both), reporting each step between 0.8 and 0.9; a cancel raises
+    :class:`~prosplat.worker.Cancelled` like every other step. Returns (Gaussians, seconds)."""
+    from prosplat.refine import refine
+
+    steps, seconds = params.get("refine_steps") or None, params.get("refine_seconds") or None
+    if steps is not None and seconds is not None:
+        raise ValueError("give refine_steps or refine_seconds, not both")
+    start = time.perf_counter()
+
+    def report(step: int, total, loss: float) -> None:
+        done = step / total if total else min((time.perf_counter() - start) / seconds, 1.0)
+        what = f"step {step}/{total}" if total else f"step {step}, {seconds:g} s budget"
+        progress(0.8 + 0.1 * done, f"refining against the inputs: {what}, loss {loss:.4f}")
+
+    progress(0.8, "refining against the inputs")
+    result = refine(
+        g, images.to(g.means.device, g.means.dtype), cameras, steps=steps, seconds=seconds,
+        depths=depths, progress=report, cancel=progress.cancelled,
+    )  # fmt: skip
+    if result.stats.cancelled:
+        from prosplat.worker import Cancelled
+
+        raise Cancelled("cancelled while refining")
+    return result.gaussians, result.stats.seconds
 
 
 def _unique_stem(folder: Path, stem: str, suffixes: list[str]) -> str:
