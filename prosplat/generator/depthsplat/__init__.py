@@ -21,6 +21,7 @@ from prosplat.generator.depthsplat.load import (
     save_released_format,
 )
 from prosplat.generator.depthsplat.model import DepthSplatEncoder
+from prosplat.generator.depthsplat.wrapper import DepthSplatGenerator
 
 __all__ = [
     "LICENCES",
@@ -28,6 +29,7 @@ __all__ = [
     "RELEASED",
     "DepthSplatConfig",
     "DepthSplatEncoder",
+    "DepthSplatGenerator",
     "load_depthsplat",
     "random_encoder",
     "random_state_dict",
