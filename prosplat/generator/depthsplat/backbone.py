@@ -6,6 +6,8 @@ from __future__ import annotations
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from prosplat.generator.depthsplat.ops import InstanceNorm
+
 
 class ResidualBlock(nn.Module):
     """conv3x3-IN-ReLU twice, plus the input (through a strided 1x1 conv where the shape changes)."""
@@ -14,15 +16,13 @@ class ResidualBlock(nn.Module):
         super().__init__()
         self.conv1 = nn.Conv2d(cin, cout, 3, stride=stride, padding=1, bias=False)
         self.conv2 = nn.Conv2d(cout, cout, 3, padding=1, bias=False)
-        self.norm1 = nn.InstanceNorm2d(cout)
-        self.norm2 = nn.InstanceNorm2d(cout)
+        self.norm1 = InstanceNorm()
+        self.norm2 = InstanceNorm()
         self.downsample = None
         if stride != 1 or cin != cout:
             # index 0 is the conv; index 1 an instance norm (no parameters), as in the
             # checkpoints' key layout ("downsample.0.weight")
-            self.downsample = nn.Sequential(
-                nn.Conv2d(cin, cout, 1, stride=stride), nn.InstanceNorm2d(cout)
-            )
+            self.downsample = nn.Sequential(nn.Conv2d(cin, cout, 1, stride=stride), InstanceNorm())
 
     def forward(self, x: Tensor) -> Tensor:
         y = F.relu(self.norm1(self.conv1(x)))
@@ -38,7 +38,7 @@ class CNNBackbone(nn.Module):
     def __init__(self, out_channels: int = 128, lowest_scale: int = 4):
         super().__init__()
         self.conv1 = nn.Conv2d(3, 64, 7, stride=2, padding=3, bias=False)
-        self.norm1 = nn.InstanceNorm2d(64)
+        self.norm1 = InstanceNorm()
         self.layer1 = nn.Sequential(ResidualBlock(64, 64), ResidualBlock(64, 64))
         stride2 = 1 if lowest_scale == 4 else 2
         self.layer2 = nn.Sequential(ResidualBlock(64, 96, stride2), ResidualBlock(96, 96))

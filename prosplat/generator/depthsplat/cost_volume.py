@@ -13,7 +13,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 # the most warped feature values held at once (floats); the reference holds all of them
-CHUNK_VALUES = 1 << 25
+CHUNK_VALUES = 1 << 26
 
 
 def pixel_grid(h: int, w: int, device, dtype) -> Tensor:
@@ -56,7 +56,9 @@ def correlation_volume(
     rot_rays = R @ rays[:, None]  # [N,M,3,HW]
     per = max(1, CHUNK_VALUES // max(1, n * m * c * h * w))  # candidates per chunk
     out = []
-    tgt_flat = tgt.reshape(n * m, c, h, w)
+    # channels-last input: grid_sample gathers each sample's C values contiguously (~2x faster)
+    tgt_flat = tgt.reshape(n * m, c, h, w).contiguous(memory_format=torch.channels_last)
+    ref_b = ref.contiguous().reshape(n, 1, c, 1, h, w)
     for d0 in range(0, d, per):
         dc = min(per, d - d0)
         z = depth[:, None, d0 : d0 + dc].reshape(n, 1, 1, dc, h * w)  # [N,1,1,Dc,HW]
@@ -70,7 +72,7 @@ def correlation_volume(
         warped = F.grid_sample(
             tgt_flat, g, mode="bilinear", padding_mode="zeros", align_corners=True
         )
-        warped = warped.view(n, m, c, dc, h, w)
-        corr = torch.einsum("nmcdhw,nchw->ndhw", warped, ref) / (c**0.5 * m)
+        warped = warped.reshape(n, m, c, dc, h, w)
+        corr = (warped * ref_b).sum(dim=2).sum(dim=1) / (c**0.5 * m)  # [N,Dc,H,W]
         out.append(corr)
     return torch.cat(out, dim=1)

@@ -17,6 +17,7 @@ from prosplat.generator.depthsplat.backbone import CNNBackbone
 from prosplat.generator.depthsplat.config import DepthSplatConfig
 from prosplat.generator.depthsplat.cost_volume import correlation_volume
 from prosplat.generator.depthsplat.dpt import DPTHead
+from prosplat.generator.depthsplat.ops import cat_channels
 from prosplat.generator.depthsplat.pyramid import FeaturePyramid
 from prosplat.generator.depthsplat.transformer import (
     MultiViewTransformer,
@@ -114,6 +115,7 @@ class DepthPredictor(nn.Module):
         mean = images.new_tensor(IMAGENET_MEAN).view(3, 1, 1)
         std = images.new_tensor(IMAGENET_STD).view(3, 1, 1)
         x = ((images - mean) / std).flatten(0, 1)  # [N,3,H,W]
+        x = x.contiguous(memory_format=torch.channels_last)  # convs run faster channels-last
         K = K_norm.clone()
         K[:, :, 0] = K[:, :, 0] * w
         K[:, :, 1] = K[:, :, 1] * h
@@ -167,7 +169,7 @@ class DepthPredictor(nn.Module):
                 cand = lo + lin * (hi - lo)  # [N,D,hs,ws]
             K_m = Ks[:, None].expand(n, tgt.shape[1], 3, 3)
             cost = correlation_volume(feats, tgt, Ks, K_m, ref_to_tgt, 1.0 / cand)  # [N,D,hs,ws]
-            cat = torch.cat([cost, coarse[s], feats, monos[s]], dim=1)
+            cat = cat_channels([cost, coarse[s], feats, monos[s]])
             self.regressor[s][3].set_num_views(v)
             out = self.regressor[s](cat) + self.regressor_residual[s](cat)
             match_prob = torch.softmax(self.depth_head[s](out), dim=1)  # [N,D,hs,ws]

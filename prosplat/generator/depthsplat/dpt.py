@@ -17,9 +17,10 @@ Which features join at which level depends on (upsample_factor, num_scales):
 
 from __future__ import annotations
 
-import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from prosplat.generator.depthsplat.ops import cat_channels
 
 
 class ResidualConvUnit(nn.Module):
@@ -138,7 +139,7 @@ class DPTHead(nn.Module):
             named["mv"] = mv
         for i, names in enumerate(self.levels):
             parts = [layers[i] if n == "vit" else named[n] for n in names]
-            layers[i] = self.concat_projects[i](torch.cat(parts, dim=1))
+            layers[i] = self.concat_projects[i](cat_channels(parts))
         s = self.scratch
         r1, r2, r3, r4 = (getattr(s, f"layer{i + 1}_rn")(x) for i, x in enumerate(layers))
         p = s.refinenet4(r4, size=r3.shape[2:])

@@ -186,7 +186,7 @@ def load_depthsplat(path_or_state_dict, device=None, **overrides) -> DepthSplatE
     check_keys(model, sd, name)
     model.load_state_dict({k: v.float() for k, v in sd.items()}, strict=True, assign=True)
     model.variant = released_entry(name)[0] if released_entry(name) else name
-    model.eval()
+    model.to(memory_format=torch.channels_last).eval()  # oneDNN's fast conv layout
     if device is not None:
         model.to(device)
     return model
@@ -215,7 +215,7 @@ def random_encoder(cfg: DepthSplatConfig, seed: int) -> DepthSplatEncoder:
     with torch.device("meta"):
         model = DepthSplatEncoder(cfg)
     model.load_state_dict(random_state_dict(model, seed), strict=True, assign=True)
-    return model.eval()
+    return model.to(memory_format=torch.channels_last).eval()
 
 
 def save_released_format(model: DepthSplatEncoder, path: str | Path) -> Path:

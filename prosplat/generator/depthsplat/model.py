@@ -13,6 +13,7 @@ from prosplat.generator.depthsplat.adapter import gaussians_from_raw
 from prosplat.generator.depthsplat.config import DepthSplatConfig
 from prosplat.generator.depthsplat.depth import DepthPredictor
 from prosplat.generator.depthsplat.dpt import DPTHead
+from prosplat.generator.depthsplat.ops import cat_channels
 from prosplat.generator.depthsplat.transformer import neighbour_index
 
 
@@ -91,10 +92,10 @@ class DepthSplatEncoder(nn.Module):
         feats = self.feature_upsampler(dp.vit_taps, dp.cnn, mv)  # [N,F,H,W]
         conf = dp.match_prob.max(dim=1, keepdim=True).values
         conf = F.interpolate(conf, size=(h, w), mode="nearest")  # [N,1,H,W]
-        img = images.flatten(0, 1)
+        img = images.flatten(0, 1).contiguous(memory_format=torch.channels_last)
         depth = dp.depth.reshape(b * v, 1, h, w)
-        x = self.gaussian_regressor(torch.cat([img, depth, conf, feats], dim=1))
-        raw = self.gaussian_head(torch.cat([x, img, feats, conf], dim=1))  # [N,37,H,W]
+        x = self.gaussian_regressor(cat_channels([img, depth, conf, feats]))
+        raw = self.gaussian_head(cat_channels([x, img, feats, conf]))  # [N,37,H,W]
         out = gaussians_from_raw(
             raw.view(b, v, *raw.shape[1:]),
             dp.depth,

@@ -4,6 +4,7 @@ nearest cameras), Swin-style shifted windows on every odd block, single head."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -52,11 +53,11 @@ def from_windows(x: Tensor, s: int, h: int, w: int) -> Tensor:
     return x.reshape(n, h, w, c)
 
 
-def shifted_window_mask(h: int, w: int, s: int, device) -> Tensor:
-    """Additive mask [s*s, L, L] for shifted windows (L = (h/s)(w/s)): -100 between tokens that
-    came from different regions of the rolled map, 0 within one region."""
+def shifted_window_regions(h: int, w: int, s: int) -> Tensor:
+    """[s*s, Lw] region label of every token of every window of the half-window-rolled map
+    (Lw = (h/s)(w/s)): tokens that were neighbours before the roll share a label."""
     wh, ww = h // s, w // s
-    region = torch.zeros(h, w, device=device)
+    region = torch.zeros(h, w)
     bounds_h = ((0, h - wh), (h - wh, h - wh // 2), (h - wh // 2, h))
     bounds_w = ((0, w - ww), (w - ww, w - ww // 2), (w - ww // 2, w))
     label = 0
@@ -64,29 +65,60 @@ def shifted_window_mask(h: int, w: int, s: int, device) -> Tensor:
         for c0, c1 in bounds_w:
             region[r0:r1, c0:c1] = label
             label += 1
-    win = to_windows(region[None, :, :, None], s)[0, :, :, 0]  # [s*s, L]
-    diff = win[:, None, :] - win[:, :, None]  # [s*s, L(query), L(key)]
-    return torch.where(
-        diff != 0, torch.tensor(-100.0, device=device), torch.tensor(0.0, device=device)
-    )
+    return to_windows(region[None, :, :, None], s)[0, :, :, 0].long()
+
+
+def shifted_window_mask(h: int, w: int, s: int, device) -> Tensor:
+    """Additive mask [s*s, Lw, Lw] for shifted windows: -100 between tokens of different
+    regions, 0 within one (the reference's values)."""
+    win = shifted_window_regions(h, w, s).to(device)
+    diff = win[:, None, :] != win[:, :, None]  # [s*s, L(query), L(key)]
+    return diff.float() * -100.0
+
+
+@functools.lru_cache(maxsize=16)
+def _region_groups(h: int, w: int, s: int, m: int):
+    """Per window: (query order, key order, regions) that make each region's queries and the
+    keys its mask lets through contiguous and equally sized, or None for a window whose
+    regions differ in size. Key j (position-major, j = p*M + view) carries mask column
+    j mod Lw, as in the reference."""
+    regions = shifted_window_regions(h, w, s)
+    lw = regions.shape[1]
+    out = []
+    for lab in regions:
+        lab_k = lab[torch.arange(lw * m) % lw]
+        counts = torch.bincount(lab)
+        counts = counts[counts > 0]
+        if bool((counts != counts[0]).any()):
+            out.append(None)
+            continue
+        q_order = torch.argsort(lab, stable=True)
+        k_order = torch.argsort(lab_k, stable=True)
+        out.append((q_order, k_order, len(counts)))
+    return out
 
 
 def window_attention(
-    q: Tensor, k: Tensor, v: Tensor, h: int, w: int, s: int, mask: Tensor | None
+    q: Tensor, k: Tensor, v: Tensor, h: int, w: int, s: int, shifted: bool, exact: bool = False
 ) -> Tensor:
     """Single-head attention inside s x s windows, with keys from M views per query.
 
-    q: [N,L,C] with L = h*w; k, v: [N,M,L,C]. With ``mask`` ([s*s,Lw,Lw]) the maps are rolled
-    by half a window first and back after. Within a window the keys are ordered
-    (position, view) and the mask is tiled M times along the key axis, position-major -- the
-    reference's layout, kept so that results agree also where M > 1.
-    Returns [N,L,C].
+    q: [N,L,C] with L = h*w; k, v: [N,M,L,C]. ``shifted``: the maps are rolled by half a
+    window first and back after, and tokens attend only within their region (the reference
+    adds -100 to the other scores; within a window the keys are ordered (position, view) and
+    its mask is tiled M times along the key axis, position-major, which for M > 1 pairs key
+    (p, view) with the mask column of position (p*M + view) mod Lw -- reproduced here).
+
+    The fast path groups each region's queries with the keys its mask admits and runs one
+    unmasked attention per region: the same as the masked softmax up to the exp(-100)
+    weights the reference leaves on masked keys. ``exact=True`` adds the mask instead
+    (the slow twin, kept for the tests). Returns [N,L,C].
     """
     n, m, _, c = k.shape
-    q = q.view(n, h, w, c)
-    k = k.view(n, m, h, w, c)
-    v = v.view(n, m, h, w, c)
-    if mask is not None:
+    q = q.reshape(n, h, w, c)
+    k = k.reshape(n, m, h, w, c)
+    v = v.reshape(n, m, h, w, c)
+    if shifted:
         sh, sw = (h // s) // 2, (w // s) // 2
         q = torch.roll(q, (-sh, -sw), (1, 2))
         k = torch.roll(k, (-sh, -sw), (2, 3))
@@ -98,12 +130,31 @@ def window_attention(
     lw = kw.shape[2]
     kw = kw.reshape(n, s * s, lw * m, c)
     vw = vw.reshape(n, s * s, lw * m, c)
-    bias = None
-    if mask is not None:
-        bias = mask.repeat(1, 1, m)  # [s*s, Lw, Lw*M]: key j gets mask column j mod Lw
-    out = F.scaled_dot_product_attention(qw, kw, vw, attn_mask=bias)  # [N,s*s,Lw,C]
+    if not shifted:
+        out = F.scaled_dot_product_attention(qw, kw, vw)  # [N,s*s,Lw,C]
+    elif exact:
+        bias = shifted_window_mask(h, w, s, q.device).repeat(1, 1, m)  # [s*s,Lw,Lw*M]
+        out = F.scaled_dot_product_attention(qw, kw, vw, attn_mask=bias)
+    else:
+        groups = _region_groups(h, w, s, m)
+        bias = None
+        out = torch.empty_like(qw)
+        for i, grp in enumerate(groups):
+            if grp is None:  # unequal regions: masked attention for this window
+                if bias is None:
+                    bias = shifted_window_mask(h, w, s, q.device).repeat(1, 1, m)
+                out[:, i] = F.scaled_dot_product_attention(
+                    qw[:, i], kw[:, i], vw[:, i], attn_mask=bias[i]
+                )
+                continue
+            qo, ko, r = (t.to(q.device) if isinstance(t, Tensor) else t for t in grp)
+            qg = qw[:, i, qo].reshape(n, r, lw // r, c)
+            kg = kw[:, i, ko].reshape(n, r, lw * m // r, c)
+            vg = vw[:, i, ko].reshape(n, r, lw * m // r, c)
+            og = F.scaled_dot_product_attention(qg, kg, vg)  # [N,R,Lw/R,C]
+            out[:, i, qo] = og.reshape(n, lw, c)
     out = from_windows(out, s, h, w)
-    if mask is not None:
+    if shifted:
         out = torch.roll(out, (sh, sw), (1, 2))
     return out.reshape(n, h * w, c)
 
@@ -128,11 +179,36 @@ class AttentionLayer(nn.Module):
             )
             self.norm2 = nn.LayerNorm(dim)
 
-    def forward(self, source: Tensor, target: Tensor, h: int, w: int, s: int, mask) -> Tensor:
-        # source [N,L,C]; target [N,M,L,C]
+    def forward(
+        self,
+        source: Tensor,
+        target: Tensor,
+        h: int,
+        w: int,
+        s: int,
+        shifted: bool,
+        index: Tensor | None = None,
+        exact: bool = False,
+    ) -> Tensor:
+        """source [B,V,L,C]; target [B,V,L,C], each view attending to the views ``index``
+        picks (:func:`gather_views`; ``index`` "self" = its own tokens). Keys and values are
+        projected once per view, then gathered (the projection is per token)."""
+        b, v, l, c = source.shape
+        k, val = self.k_proj(target), self.v_proj(target)
+        if isinstance(index, str):
+            k, val = k[:, :, None], val[:, :, None]  # [B,V,1,L,C]
+        else:
+            k, val = gather_views(k, index), gather_views(val, index)  # [B,V,M,L,C]
         msg = window_attention(
-            self.q_proj(source), self.k_proj(target), self.v_proj(target), h, w, s, mask
-        )
+            self.q_proj(source).flatten(0, 1),
+            k.flatten(0, 1),
+            val.flatten(0, 1),
+            h,
+            w,
+            s,
+            shifted,
+            exact,
+        ).view(b, v, l, c)
         msg = self.norm1(self.merge(msg))
         if self.has_ffn:
             msg = self.norm2(self.mlp(torch.cat([source, msg], dim=-1)))
@@ -176,15 +252,12 @@ class MultiViewTransformer(nn.Module):
         super().__init__()
         self.layers = nn.ModuleList([TransformerBlock(dim, expansion) for _ in range(layers)])
 
-    def forward(self, x: Tensor, splits: int, index: Tensor | None) -> Tensor:
+    def forward(self, x: Tensor, splits: int, index: Tensor | None, exact: bool = False) -> Tensor:
         b, v, c, h, w = x.shape
-        mask = shifted_window_mask(h, w, splits, x.device) if splits > 1 else None
         tokens = x.flatten(3).transpose(2, 3)  # [B,V,L,C]
         for i, block in enumerate(self.layers):
-            m = mask if i % 2 == 1 else None
-            target = gather_views(tokens, index)  # [B,V,M,L,C], last block's output
-            src = tokens.reshape(b * v, h * w, c)
-            src = block.self_attn(src, src[:, None], h, w, splits, m)
-            src = block.cross_attn_ffn(src, target.flatten(0, 1), h, w, splits, m)
-            tokens = src.view(b, v, h * w, c)
+            shifted = splits > 1 and i % 2 == 1
+            prev = tokens  # the cross-attention's keys: the previous block's output
+            tokens = block.self_attn(tokens, tokens, h, w, splits, shifted, "self", exact)
+            tokens = block.cross_attn_ffn(tokens, prev, h, w, splits, shifted, index, exact)
         return tokens.transpose(2, 3).reshape(b, v, c, h, w)

@@ -4,9 +4,10 @@ multi-head attention in which every view attends to the tokens of all the views.
 
 from __future__ import annotations
 
-import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from prosplat.generator.depthsplat.ops import cat_channels
 
 
 def group_norm(channels: int) -> nn.GroupNorm:
@@ -129,5 +130,5 @@ class UNet(nn.Module):
             hs.append(x)
         x = self.middle_block(x)
         for blk in self.output_blocks:
-            x = blk(torch.cat([x, hs.pop()], dim=1))
+            x = blk(cat_channels([x, hs.pop()]))
         return self.out(x)
