@@ -116,3 +116,19 @@ def test_pipeline_errors(released_file, tmp_path):
     model = ProSplat.from_pretrained(generator=released_file, improve=False)
     with pytest.raises(ValueError, match="DepthSplat"):
         model.save(tmp_path / "out.safetensors")
+
+
+def test_eval_cli_adds_a_depthsplat_row(released_file, tmp_path):
+    import subprocess
+    import sys
+
+    from synthetic_scenes import write_synthetic_scene
+
+    folder = tmp_path / "scene_a"
+    write_synthetic_scene(folder, size=32, n_views=5)
+    cmd = [sys.executable, "-m", "prosplat", "eval", "generator", "--data", str(tmp_path)]
+    cmd += ["--views", "2", "--no-generator", "--baselines", "--generator", str(released_file)]
+    cmd += ["--out", str(tmp_path / "eval")]
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "DepthSplat (user weights)" in res.stdout
