@@ -218,21 +218,37 @@ def test_sh_rotation_is_a_representation():
 
 @pytest.mark.parametrize("m", [1, 2, 3])
 @pytest.mark.parametrize("shifted", [False, True])
-def test_window_attention_fast_path_matches_masked_twin(m, shifted):
-    """The region-grouped attention (fast) against the reference's additive -100 mask, with
-    the mask tiled over M views as the reference does."""
-    from prosplat.generator.depthsplat.transformer import window_attention
+def test_grouped_attention_matches_masked_twin(m, shifted):
+    """The one-gather, region-grouped attention (fast) against the reference's form: keys
+    gathered per view, additive -100 mask tiled over M views as the reference does it."""
+    from prosplat.generator.depthsplat.transformer import (
+        gather_views,
+        grouped_attention,
+        window_attention,
+    )
 
     g = torch.Generator().manual_seed(m)
-    n, h, w, c = 3, 16, 24, 8
-    q = torch.randn(n, h * w, c, generator=g)
-    k = torch.randn(n, m, h * w, c, generator=g)
-    v = torch.randn(n, m, h * w, c, generator=g)
-    fast = window_attention(q, k, v, h, w, 2, shifted)
-    twin = window_attention(q, k, v, h, w, 2, shifted, exact=True)
+    b, v, h, w, c = 2, m + 1, 16, 24, 8
+    q = torch.randn(b, v, h * w, c, generator=g)
+    k = torch.randn(b, v, h * w, c, generator=g)
+    val = torch.randn(b, v, h * w, c, generator=g)
+    nb = torch.stack([torch.randperm(v, generator=g) for _ in range(b * v)]).view(b, v, v)
+    nb = nb[..., :m]
+    fast = grouped_attention(q, k, val, nb, h, w, 2, shifted)
+    twin = window_attention(
+        q.flatten(0, 1),
+        gather_views(k, nb).flatten(0, 1),
+        gather_views(val, nb).flatten(0, 1),
+        h,
+        w,
+        2,
+        shifted,
+        exact=True,
+    ).view(b, v, h * w, c)
     assert torch.allclose(fast, twin, atol=1e-5)
     if shifted:  # the mask matters: plain windows give something else
-        assert not torch.allclose(fast, window_attention(q, k, v, h, w, 2, False), atol=1e-3)
+        plain = grouped_attention(q, k, val, nb, h, w, 2, False)
+        assert not torch.allclose(fast, plain, atol=1e-3)
 
 
 def test_instance_norm_matches_torch():

@@ -76,32 +76,12 @@ def shifted_window_mask(h: int, w: int, s: int, device) -> Tensor:
     return diff.float() * -100.0
 
 
-@functools.lru_cache(maxsize=16)
-def _region_groups(h: int, w: int, s: int, m: int):
-    """Per window: (query order, key order, regions) that make each region's queries and the
-    keys its mask lets through contiguous and equally sized, or None for a window whose
-    regions differ in size. Key j (position-major, j = p*M + view) carries mask column
-    j mod Lw, as in the reference."""
-    regions = shifted_window_regions(h, w, s)
-    lw = regions.shape[1]
-    out = []
-    for lab in regions:
-        lab_k = lab[torch.arange(lw * m) % lw]
-        counts = torch.bincount(lab)
-        counts = counts[counts > 0]
-        if bool((counts != counts[0]).any()):
-            out.append(None)
-            continue
-        q_order = torch.argsort(lab, stable=True)
-        k_order = torch.argsort(lab_k, stable=True)
-        out.append((q_order, k_order, len(counts)))
-    return out
-
-
 def window_attention(
-    q: Tensor, k: Tensor, v: Tensor, h: int, w: int, s: int, shifted: bool, exact: bool = False
+    q: Tensor, k: Tensor, v: Tensor, h: int, w: int, s: int, shifted: bool, exact: bool = True
 ) -> Tensor:
-    """Single-head attention inside s x s windows, with keys from M views per query.
+    """The reference's form of the windowed attention (the slow twin of
+    :func:`grouped_attention`, used by the tests and for odd window sizes): single-head
+    attention inside s x s windows, with keys from M views per query.
 
     q: [N,L,C] with L = h*w; k, v: [N,M,L,C]. ``shifted``: the maps are rolled by half a
     window first and back after, and tokens attend only within their region (the reference
@@ -109,10 +89,10 @@ def window_attention(
     its mask is tiled M times along the key axis, position-major, which for M > 1 pairs key
     (p, view) with the mask column of position (p*M + view) mod Lw -- reproduced here).
 
-    The fast path groups each region's queries with the keys its mask admits and runs one
-    unmasked attention per region: the same as the masked softmax up to the exp(-100)
-    weights the reference leaves on masked keys. ``exact=True`` adds the mask instead
-    (the slow twin, kept for the tests). Returns [N,L,C].
+    :func:`grouped_attention` instead groups each region's queries with the keys this mask
+    admits and runs one unmasked attention per region: the same as the masked softmax up to
+    the exp(-100) weights the reference leaves on masked keys. ``exact`` is accepted for
+    symmetry (this form is always exact). Returns [N,L,C].
     """
     n, m, _, c = k.shape
     q = q.reshape(n, h, w, c)
@@ -130,33 +110,99 @@ def window_attention(
     lw = kw.shape[2]
     kw = kw.reshape(n, s * s, lw * m, c)
     vw = vw.reshape(n, s * s, lw * m, c)
-    if not shifted:
-        out = F.scaled_dot_product_attention(qw, kw, vw)  # [N,s*s,Lw,C]
-    elif exact:
+    bias = None
+    if shifted:
         bias = shifted_window_mask(h, w, s, q.device).repeat(1, 1, m)  # [s*s,Lw,Lw*M]
-        out = F.scaled_dot_product_attention(qw, kw, vw, attn_mask=bias)
-    else:
-        groups = _region_groups(h, w, s, m)
-        bias = None
-        out = torch.empty_like(qw)
-        for i, grp in enumerate(groups):
-            if grp is None:  # unequal regions: masked attention for this window
-                if bias is None:
-                    bias = shifted_window_mask(h, w, s, q.device).repeat(1, 1, m)
-                out[:, i] = F.scaled_dot_product_attention(
-                    qw[:, i], kw[:, i], vw[:, i], attn_mask=bias[i]
-                )
-                continue
-            qo, ko, r = (t.to(q.device) if isinstance(t, Tensor) else t for t in grp)
-            qg = qw[:, i, qo].reshape(n, r, lw // r, c)
-            kg = kw[:, i, ko].reshape(n, r, lw * m // r, c)
-            vg = vw[:, i, ko].reshape(n, r, lw * m // r, c)
-            og = F.scaled_dot_product_attention(qg, kg, vg)  # [N,R,Lw/R,C]
-            out[:, i, qo] = og.reshape(n, lw, c)
+    out = F.scaled_dot_product_attention(qw, kw, vw, attn_mask=bias)  # [N,s*s,Lw,C]
     out = from_windows(out, s, h, w)
     if shifted:
         out = torch.roll(out, (sh, sw), (1, 2))
     return out.reshape(n, h * w, c)
+
+
+@functools.lru_cache(maxsize=32)
+def _token_plan(h: int, w: int, s: int, m: int, shifted: bool):
+    """One gather for the whole windowed attention: the order that puts every window's
+    tokens (after the half-window roll when ``shifted``) region by region, and the matching
+    order of the keys (position-major (p, view) within a window, region of the mask column
+    (p*M + view) mod Lw, as :func:`window_attention` explains).
+
+    Returns (q_index [L], inverse [L], k_view [L*M], k_pos [L*M], segments) where segments
+    are (q_start, k_start, regions, Lw) per window, or None when a window's regions differ
+    in size (then the masked path is used)."""
+    grid = torch.arange(h * w).view(h, w)
+    if shifted:
+        grid = torch.roll(grid, (-((h // s) // 2), -((w // s) // 2)), (0, 1))
+    win = to_windows(grid[None, :, :, None], s)[0, :, :, 0]  # [s*s,Lw] original token index
+    lw = win.shape[1]
+    labels = shifted_window_regions(h, w, s) if shifted else torch.zeros_like(win)
+    q_index, k_view, k_pos, segments = [], [], [], []
+    j = torch.arange(lw * m)
+    for i in range(s * s):
+        lab = labels[i]
+        counts = torch.bincount(lab)
+        counts = counts[counts > 0]
+        if bool((counts != counts[0]).any()):
+            return None
+        qo = torch.argsort(lab, stable=True)
+        ko = torch.argsort(lab[j % lw], stable=True)  # key j = (p = j // M, view = j % M)
+        segments.append((i * lw, i * lw * m, len(counts), lw))
+        q_index.append(win[i][qo])
+        k_pos.append(win[i][ko // m])
+        k_view.append(ko % m)
+    q_index = torch.cat(q_index)
+    return q_index, torch.argsort(q_index), torch.cat(k_view), torch.cat(k_pos), segments
+
+
+def grouped_attention(
+    q: Tensor, k: Tensor, v: Tensor, nb: Tensor, h: int, w: int, s: int, shifted: bool
+) -> Tensor:
+    """The fast form of :func:`window_attention` for all views at once.
+
+    q, k, v: [B,V,L,C] projected tokens of every view; nb: [B,V,M] the views each view
+    attends to. One gather builds every window's (region-grouped) queries and keys straight
+    from the per-view tokens, one unmasked attention runs per window (per region inside a
+    shifted window), one gather puts the result back. Returns [B,V,L,C]."""
+    b, v_, l, c = q.shape
+    m = nb.shape[-1]
+    plan = _token_plan(h, w, s, m, shifted)
+    if plan is None:  # unequal regions (odd window sizes): the masked form
+        kk = gather_views(k, nb).flatten(0, 1)
+        vv = gather_views(v, nb).flatten(0, 1)
+        out = window_attention(q.flatten(0, 1), kk, vv, h, w, s, shifted, exact=True)
+        return out.view(b, v_, l, c)
+    q_index, inverse, k_view, k_pos, segments = (
+        t.to(q.device) if isinstance(t, Tensor) else t for t in plan
+    )
+    full = nb[:, :, k_view] * l + k_pos  # [B,V,L*M] index into the V*L tokens of a scene
+    bi = torch.arange(b, device=q.device)[:, None, None]
+    kg = k.reshape(b, v_ * l, c)[bi, full].flatten(0, 1)  # [N,L*M,C]
+    vg = v.reshape(b, v_ * l, c)[bi, full].flatten(0, 1)
+    qg = q[:, :, q_index].flatten(0, 1)  # [N,L,C]
+    n = qg.shape[0]
+    if all(seg[2] == 1 for seg in segments):  # plain windows: one call for all of them
+        lw = segments[0][3]
+        og = F.scaled_dot_product_attention(
+            qg.view(n, -1, lw, c), kg.view(n, -1, lw * m, c), vg.view(n, -1, lw * m, c)
+        ).reshape(n, l, c)
+    else:
+        parts = []
+        for qs, ks, r, lw in segments:
+            parts.append(
+                F.scaled_dot_product_attention(
+                    qg[:, qs : qs + lw].reshape(n, r, lw // r, c),
+                    kg[:, ks : ks + lw * m].reshape(n, r, lw * m // r, c),
+                    vg[:, ks : ks + lw * m].reshape(n, r, lw * m // r, c),
+                ).reshape(n, lw, c)
+            )
+        og = torch.cat(parts, dim=1)
+    return og[:, inverse].view(b, v_, l, c)
+
+
+def other_views(b: int, v: int, device) -> Tensor:
+    """[B,V,V-1]: every other view, in index order (the reference's choice for V <= 3)."""
+    others = [[j for j in range(v) if j != i] for i in range(v)]
+    return torch.tensor(others, device=device, dtype=torch.long).expand(b, v, v - 1)
 
 
 class AttentionLayer(nn.Module):
@@ -191,27 +237,35 @@ class AttentionLayer(nn.Module):
         exact: bool = False,
     ) -> Tensor:
         """source [B,V,L,C]; target [B,V,L,C], each view attending to the views ``index``
-        picks (:func:`gather_views`; ``index`` "self" = its own tokens). Keys and values are
+        picks ([B,V,M]; "self": its own tokens; None: all other views). Keys and values are
         projected once per view, then gathered (the projection is per token)."""
         b, v, l, c = source.shape
-        k, val = self.k_proj(target), self.v_proj(target)
         if isinstance(index, str):
-            k, val = k[:, :, None], val[:, :, None]  # [B,V,1,L,C]
+            nb = torch.arange(v, device=source.device).view(1, v, 1).expand(b, v, 1)
+        elif index is None:
+            nb = other_views(b, v, source.device)
         else:
-            k, val = gather_views(k, index), gather_views(val, index)  # [B,V,M,L,C]
-        msg = window_attention(
-            self.q_proj(source).flatten(0, 1),
-            k.flatten(0, 1),
-            val.flatten(0, 1),
-            h,
-            w,
-            s,
-            shifted,
-            exact,
-        ).view(b, v, l, c)
+            nb = index
+        k, val, q = self.k_proj(target), self.v_proj(target), self.q_proj(source)
+        if exact:
+            msg = window_attention(
+                q.flatten(0, 1),
+                gather_views(k, nb).flatten(0, 1),
+                gather_views(val, nb).flatten(0, 1),
+                h,
+                w,
+                s,
+                shifted,
+                exact=True,
+            ).view(b, v, l, c)
+        else:
+            msg = grouped_attention(q, k, val, nb, h, w, s, shifted)
         msg = self.norm1(self.merge(msg))
         if self.has_ffn:
-            msg = self.norm2(self.mlp(torch.cat([source, msg], dim=-1)))
+            # mlp(cat([source, msg])) with the first layer's weight split: no concatenation
+            w1 = self.mlp[0].weight
+            hidden = F.linear(source, w1[:, :c]).add_(F.linear(msg, w1[:, c:]))
+            msg = self.norm2(self.mlp[2](self.mlp[1](hidden)))
         return source + msg
 
 
