@@ -222,6 +222,9 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
             methods[evaluate.refine_label(seconds=secs)] = evaluate.refine_method(
                 model, seconds=secs, budget=budget
             )
+    if args.generator is not None:  # the ladder's "DepthSplat (user weights)" row
+        ds = ProSplat.from_pretrained(generator=args.generator, improve=False)
+        methods["DepthSplat (user weights)"] = evaluate.generator_method(ds)
     if "plane_sweep" in args.baselines:
         methods["plane sweep"] = evaluate.plane_sweep_method()
     if "optimize" in args.baselines:
@@ -522,6 +525,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     eg.add_argument("--data", type=Path, required=True, help="test dataset folder")
     eg.add_argument("--weights", default=None, help="generator checkpoint (default: shipped)")
+    eg.add_argument(
+        "--generator",
+        type=Path,
+        default=None,
+        help="also evaluate a DepthSplat checkpoint (depthsplat-gs-*.pth, README 'DepthSplat "
+        "weights') as the row 'DepthSplat (user weights)'",
+    )
     eg.add_argument("--views", type=int, nargs="+", default=[2, 4, 6], help="input-view counts")
     eg.add_argument(
         "--baselines",

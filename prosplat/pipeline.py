@@ -148,9 +148,17 @@ class ProSplat:
     ``model.improver`` is the stage-2 :class:`~prosplat.improve.ImproveModel` or None.
     """
 
-    def __init__(self, config: GeneratorConfig | None = None, device=None, improver=None) -> None:
-        self.config = TINY if config is None else config
-        self.generator = Generator(self.config).to(device if device is not None else "cpu")
+    def __init__(
+        self, config: GeneratorConfig | None = None, device=None, improver=None, generator=None
+    ) -> None:
+        if (
+            generator is not None
+        ):  # a ready generator, e.g. DepthSplat (from_pretrained(generator=))
+            self.config = generator.config
+            self.generator = generator.to(device if device is not None else "cpu")
+        else:
+            self.config = TINY if config is None else config
+            self.generator = Generator(self.config).to(device if device is not None else "cpu")
         self.generator.eval()
         self.improver = improver
         if improver is not None:
@@ -174,11 +182,19 @@ class ProSplat:
         config: GeneratorConfig | None = None,
         device=None,
         improve: str | Path | bool | None = None,
+        *,
+        generator: str | Path | None = None,
+        generator_size: tuple[int, int] | None = None,
     ) -> ProSplat:
         """Load a checkpoint written by :meth:`save` (or the training command).
 
         Args:
             path: a ``.safetensors`` file; None loads the shipped ``generator_tiny`` weights.
+            generator: instead of ``path``, a DepthSplat checkpoint (a released
+                ``depthsplat-gs-*.pth``, see README "DepthSplat weights"), loaded strictly by
+                :func:`prosplat.generator.depthsplat.load_depthsplat`; ``generator_size``
+                (H, W) fixes its resolution (default: each input rounded to the sizes it
+                accepts).
             config: only needed for a file without config metadata; if both are present they
                 must agree.
             device: where to put the model (default CPU).
@@ -186,6 +202,16 @@ class ProSplat:
                 when they exist (else no improvement model), a path loads that file, False
                 loads none.
         """
+        if generator is not None:
+            if path is not None or config is not None:
+                raise ValueError(
+                    "pass either path=/config= (a prosplat generator) or generator= (DepthSplat)"
+                )
+            from prosplat.generator.depthsplat import DepthSplatGenerator, load_depthsplat
+
+            gen = DepthSplatGenerator(load_depthsplat(generator), size=generator_size)
+            model = cls(device="cpu", improver=_load_improver(improve), generator=gen)
+            return model.to(device) if device is not None else model
         if path is None:
             path = DEFAULT_WEIGHTS
             if not path.is_file():
@@ -218,6 +244,10 @@ class ProSplat:
     def save(self, path: str | Path, overwrite: bool = False) -> Path:
         """Write weights + config to ``path`` atomically (a temp file in the same folder, then a
         rename), never replacing an existing file unless ``overwrite``."""
+        if not isinstance(self.generator, Generator):
+            raise ValueError(
+                "save() writes prosplat generators; a DepthSplat generator stays in its own file"
+            )
         meta = {
             "format": CHECKPOINT_FORMAT,
             "config": self.config.to_json(),
