@@ -298,19 +298,14 @@ def true_depth_rungs(ctx: LadderContext) -> list[Rung]:
 
 @register("depthsplat")
 def depthsplat_rungs(ctx: LadderContext) -> list[Rung]:
-    """DepthSplat's released checkpoint as stage 1, when a file is given (``--depthsplat``).
-
-    The port (``prosplat.generator.depthsplat``) is another branch's work; until it lands this
-    row explains itself and is skipped.
-    """
+    """DepthSplat's released checkpoint as stage 1, when a file is given (``--depthsplat``):
+    our port (``prosplat.generator.depthsplat``) behind the ProSplat interface."""
     path = ctx.options.get("depthsplat")
     if not path:
         raise SkipRung("no DepthSplat checkpoint given (--depthsplat PATH)")
-    try:
-        from prosplat.generator.depthsplat import load_depthsplat  # type: ignore[import-not-found]
-    except ImportError as e:
-        raise SkipRung(f"this ProSplat has no DepthSplat port yet ({e})") from None
-    model = load_depthsplat(path)
+    from prosplat.pipeline import ProSplat
+
+    model = ProSplat.from_pretrained(generator=path, improve=False)
 
     def reconstruct(inp: SceneInputs):
         return model.reconstruct(inp.images, inp.cameras, inp.near, inp.far)
