@@ -203,6 +203,7 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     from prosplat import evaluate
     from prosplat.data import find_scenes, load_scene
     from prosplat.pipeline import ProSplat
+    from prosplat.refine import check_refine_args
 
     methods = {}
     budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
@@ -240,18 +241,6 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
         scene = load_scene(folder)
         rows += evaluate.evaluate_scene(scene, methods, args.views, budget=budget, references=refs)
     return evaluate.write_scores(rows, args.out)
-
-
-def check_refine_args(steps: list[int] | int, seconds: list[float] | float | None) -> None:
-    """--refine-steps must be integers >= 0 and --refine-seconds finite numbers > 0."""
-    import math
-
-    steps = steps if isinstance(steps, list) else [steps]
-    seconds = seconds if isinstance(seconds, list) else [] if seconds is None else [seconds]
-    if bad := [s for s in steps if s < 0]:
-        raise ValueError(f"--refine-steps must be >= 0 (0: no refinement), got {bad}")
-    if bad := [s for s in seconds if not (math.isfinite(s) and s > 0)]:
-        raise ValueError(f"--refine-seconds must be a number of seconds > 0, got {bad}")
 
 
 def add_refine_arguments(parser: argparse.ArgumentParser, many: bool = False) -> None:

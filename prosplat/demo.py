@@ -82,7 +82,7 @@ class DemoConfig:
             raise ValueError(f"--samples must be >= 1, got {self.samples}")
         if self.budget is not None and not self.budget > 0:
             raise ValueError(f"--budget must be a count or a fraction in (0, 1], got {self.budget}")
-        from prosplat.cli import check_refine_args
+        from prosplat.refine import check_refine_args
 
         check_refine_args(self.refine_steps, self.refine_seconds)
         if self.refine_steps and self.refine_seconds is not None:

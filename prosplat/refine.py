@@ -38,6 +38,7 @@ from prosplat.render import render
 from prosplat.render.projection import DILATION, FOV_CLAMP, MIN_ALPHA, NEAR_PLANE
 
 __all__ = [
+    "check_refine_args",
     "LearningRates",
     "RefineOptions",
     "RefineResult",
@@ -511,3 +512,13 @@ def refine(
         scene_extent=extent,
     )
     return RefineResult(result, stats)
+
+
+def check_refine_args(steps: list[int] | int, seconds: list[float] | float | None) -> None:
+    """--refine-steps must be integers >= 0 and --refine-seconds finite numbers > 0."""
+    steps = steps if isinstance(steps, list) else [steps]
+    seconds = seconds if isinstance(seconds, list) else [] if seconds is None else [seconds]
+    if bad := [s for s in steps if s < 0]:
+        raise ValueError(f"--refine-steps must be >= 0 (0: no refinement), got {bad}")
+    if bad := [s for s in seconds if not (math.isfinite(s) and s > 0)]:
+        raise ValueError(f"--refine-seconds must be a number of seconds > 0, got {bad}")
