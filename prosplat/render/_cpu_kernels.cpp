@@ -81,13 +81,9 @@ inline T gaussian_power(T dx, T dy, T ca, T cb, T cc) {
   return T(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
 }
 
-template <typename Fn>
-void parallel_tiles(int64_t n_tiles, int n_threads, Fn fn) {
-  n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
-  std::atomic<int64_t> next{0};
-  auto worker = [&](int tid) {
-    for (int64_t t = next++; t < n_tiles; t = next++) fn(t, tid);
-  };
+// Run worker(tid) for tid = 0..n_threads-1, worker 0 on the calling thread.
+template <typename Worker>
+void run_workers(int n_threads, Worker worker) {
   if (n_threads == 1) {
     worker(0);
     return;
@@ -98,23 +94,24 @@ void parallel_tiles(int64_t n_tiles, int n_threads, Fn fn) {
   for (auto& th : pool) th.join();
 }
 
+template <typename Fn>
+void parallel_tiles(int64_t n_tiles, int n_threads, Fn fn) {
+  n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
+  std::atomic<int64_t> next{0};
+  run_workers(n_threads, [&](int tid) {
+    for (int64_t t = next++; t < n_tiles; t = next++) fn(t, tid);
+  });
+}
+
 // Thread tid takes tiles tid, tid + n, tid + 2n, ...: a fixed split, so each thread's
 // gradient buffer sums the same tiles in the same order on every run (the backward pass is
 // then bitwise reproducible for a thread count, which seeded refinement relies on).
 template <typename Fn>
 void parallel_tiles_static(int64_t n_tiles, int n_threads, Fn fn) {
   n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
-  auto worker = [&](int tid) {
+  run_workers(n_threads, [&](int tid) {
     for (int64_t t = tid; t < n_tiles; t += n_threads) fn(t, tid);
-  };
-  if (n_threads == 1) {
-    worker(0);
-    return;
-  }
-  std::vector<std::thread> pool;
-  for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker, i);
-  worker(0);
-  for (auto& th : pool) th.join();
+  });
 }
 
 template <typename T>

@@ -169,8 +169,6 @@ def crop_batch(batch: dict[str, Tensor], size: int, top: int, left: int) -> dict
     intrinsics shifted to match: the same scene seen by narrower cameras, at the data's own
     pixel scale (no resampling, so depth stays exact). A cheap augmentation that makes one
     rendered scene serve several framings."""
-    from prosplat.generator.cost_volume import scale_intrinsics
-
     h, w = batch["input_images"].shape[-2:]
     if not (0 <= top <= h - size and 0 <= left <= w - size):
         raise ValueError(f"crop {size} px at ({top}, {left}) does not fit {w}x{h} images")
@@ -181,7 +179,7 @@ def crop_batch(batch: dict[str, Tensor], size: int, top: int, left: int) -> dict
     for key in ("input_K", "target_K"):
         if key not in batch:
             continue
-        K = scale_intrinsics(batch[key], 1.0, 1.0)  # a copy
+        K = batch[key].clone()
         K[..., 0, 2] -= left
         K[..., 1, 2] -= top
         out[key] = K
