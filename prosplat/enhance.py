@@ -5,6 +5,17 @@ The improvement model needs image sizes that are multiples of its stride (16 for
 any camera works here because the render and the reference are padded on the right and
 bottom (edge replicate) and the result cropped back. Padding there leaves pixel coordinates,
 and so the fundamental matrix, unchanged.
+
+Any camera size: a view larger than the model's ``working_size`` (the size it was trained at)
+is enhanced at that size, and only the change, ``enhanced - raw`` at the working size, is
+upsampled and added to the full-resolution render. The render keeps its own detail, the model
+sees textures at the scale it learned, memory stays bounded by the working size whatever the
+camera (a 4K frame costs what a 64-px one does), and there are no tile seams.
+
+The guard: enhancing a view that the Gaussians barely cover asks the model to invent a
+picture, and a model that rewrites pixels the render is sure of has left its training
+distribution. In both cases :func:`render_view` returns the raw render and says why
+(``EnhancedView.guard``), instead of an invented image.
 """
 
 from __future__ import annotations
@@ -39,6 +50,56 @@ class EnhancedView:
     depth: Tensor
     reference: int | None
     timings: dict[str, float] = field(default_factory=dict)
+    guard: str | None = None  # why the raw render was returned instead of the enhanced one
+
+
+@dataclass(frozen=True)
+class EnhanceOptions:
+    """How stage 2 is applied to a view.
+
+    Attributes:
+        working_size: the longest side the model runs at; larger views are enhanced at this
+            size and the change is carried up (module docstring). None: the model's own
+            ``config.working_size``; 0: every view at its own size.
+        guard: return the raw render when one of the two checks below fails.
+        min_coverage: the least mean render alpha (fraction of the view the Gaussians
+            cover) that is enhanced.
+        max_departure: the largest mean absolute change (colour units, 0-1) the model may
+            make on the pixels the render is confident about (alpha > ``confident_alpha``).
+        confident_alpha: the alpha above which a rendered pixel counts as confident.
+    """
+
+    working_size: int | None = None
+    guard: bool = True
+    min_coverage: float = 0.05
+    max_departure: float = 0.15
+    confident_alpha: float = 0.9
+
+    def __post_init__(self) -> None:
+        if self.working_size is not None and self.working_size < 0:
+            raise ValueError(f"working_size must be >= 0 or None, got {self.working_size}")
+        if not 0.0 <= self.min_coverage <= 1.0 or not 0.0 <= self.confident_alpha < 1.0:
+            raise ValueError("min_coverage must be in [0, 1] and confident_alpha in [0, 1)")
+        if not self.max_departure > 0:
+            raise ValueError(f"max_departure must be > 0, got {self.max_departure}")
+
+
+def guard_reason(
+    raw: Tensor, enhanced: Tensor, alpha: Tensor, options: EnhanceOptions
+) -> str | None:
+    """Why ``enhanced [3,H,W]`` should not replace ``raw [3,H,W]`` (``alpha [H,W]``), or None."""
+    coverage = float(alpha.mean())
+    if coverage < options.min_coverage:
+        return f"coverage {coverage:.0%} < {options.min_coverage:.0%}: nothing to enhance"
+    sure = alpha > options.confident_alpha  # [H,W]
+    if bool(sure.any()):
+        departure = float((enhanced - raw).abs().mean(0)[sure].mean())
+        if departure > options.max_departure:
+            return (
+                f"the model changed confident pixels by {departure:.3f} on average "
+                f"(> {options.max_departure}): out of its training distribution"
+            )
+    return None
 
 
 def pad_to_multiple(images: Tensor, multiple: int) -> Tensor:
@@ -67,11 +128,39 @@ def enhance(
     reference_image: Tensor | None,
     reference_camera: Camera | None,
     dtype: torch.dtype = torch.float32,
+    working_size: int | None = None,
 ) -> Tensor:
     """Run ``improver`` on one render ``raw [3,H,W]`` with its reference; returns [3,H,W].
 
+    Views larger than ``working_size`` (None: the model's ``config.working_size``; 0: no
+    limit) are enhanced at that size and the change is carried up (module docstring).
     ``dtype=torch.bfloat16`` runs under CPU/GPU autocast (the output is float32 again).
     """
+    h, w = raw.shape[-2:]
+    size = improver.config.working_size if working_size is None else working_size
+    if size and max(h, w) > size:
+        s = size / max(h, w)
+        hs, ws = max(1, round(h * s)), max(1, round(w * s))
+        small = F.interpolate(
+            raw[None], size=(hs, ws), mode="bilinear", align_corners=False, antialias=True
+        )[0]  # [3,hs,ws]
+        change = _enhance_native(
+            improver, small, camera.resized(ws, hs), reference_image, reference_camera, dtype
+        ) - small.to(dtype=torch.float32)  # [3,hs,ws] on the model's device
+        up = F.interpolate(change[None], size=(h, w), mode="bilinear", align_corners=False)[0]
+        return (raw.to(up.device, torch.float32) + up).clamp(0.0, 1.0)
+    return _enhance_native(improver, raw, camera, reference_image, reference_camera, dtype)
+
+
+def _enhance_native(
+    improver,
+    raw: Tensor,
+    camera: Camera,
+    reference_image: Tensor | None,
+    reference_camera: Camera | None,
+    dtype: torch.dtype,
+) -> Tensor:
+    """The model on ``raw [3,H,W]`` at its own size (padded to the model's multiple)."""
     h, w = raw.shape[-2:]
     m = improver.config.size_multiple
     device = next(improver.parameters()).device
@@ -98,9 +187,14 @@ def render_view(
     reference_method: str = "paper",
     background: Tensor | None = None,
     dtype: torch.dtype = torch.float32,
+    options: EnhanceOptions | None = None,
 ) -> EnhancedView:
     """Render ``camera`` and, when ``improver`` is given, enhance it with the MORI reference
-    chosen among ``cameras`` (whose images are ``images [N,3,H,W]``)."""
+    chosen among ``cameras`` (whose images are ``images [N,3,H,W]``).
+
+    ``options`` (default :class:`EnhanceOptions`) sets the working size and the guard; a
+    guarded view returns the raw render as ``image`` with the reason in ``guard``."""
+    options = options or EnhanceOptions()
     t0 = time.perf_counter()
     with torch.no_grad():
         out = render(gaussians, camera, background=background)
@@ -120,7 +214,12 @@ def render_view(
     ref = select_reference(camera, cameras, method=reference_method, target_depth=depth)
     t2 = time.perf_counter()
     with torch.no_grad():
-        image = enhance(improver, out.rgb, camera, images[ref], cameras[ref], dtype)
+        image = enhance(
+            improver, out.rgb, camera, images[ref], cameras[ref], dtype, options.working_size
+        ).to(out.rgb.device)
     t3 = time.perf_counter()
     timings.update(mori_ms=1e3 * (t2 - t1), enhance_ms=1e3 * (t3 - t2))
-    return EnhancedView(image.to(out.rgb.device), out.rgb, out.alpha, out.depth, ref, timings)
+    reason = guard_reason(out.rgb, image, out.alpha, options) if options.guard else None
+    if reason is not None:
+        image = out.rgb
+    return EnhancedView(image, out.rgb, out.alpha, out.depth, ref, timings, reason)

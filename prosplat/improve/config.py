@@ -51,6 +51,12 @@ class ImproveConfig:
             training can only start from "no change". For training from scratch on a CPU
             this is what makes a few thousand steps enough; a pretrained SD-Turbo decoder
             already reproduces images, so that path turns it off.
+        working_size: the longest image side the model was trained at. A larger view is
+            enhanced at this size and only the change is carried up to the full resolution
+            (:mod:`prosplat.enhance`): a model trained on 64-px crops sees textures at another
+            scale in a 1080p frame, and its bottleneck attention would grow with the square of
+            the pixel count. 0 runs every view at its own size. Not an architecture
+            parameter: it travels in the config so the weights say how to use them.
     """
 
     vae_channels: tuple[int, ...] = (32, 64, 64)
@@ -72,6 +78,7 @@ class ImproveConfig:
     vae_skip: bool = True
     skip_init: float = 1e-5
     residual: bool = True
+    working_size: int = 64
 
     def __post_init__(self) -> None:
         for name in ("vae_channels", "unet_channels"):
@@ -103,6 +110,8 @@ class ImproveConfig:
             raise ValueError(
                 "ImproveConfig latent_channels, prompt_tokens, dwea_heads must be >= 1"
             )
+        if self.working_size < 0:
+            raise ValueError(f"ImproveConfig.working_size must be >= 0, got {self.working_size}")
         if not self.scaling_factor > 0:
             raise ValueError(f"ImproveConfig.scaling_factor must be > 0, got {self.scaling_factor}")
 
