@@ -23,23 +23,21 @@ ABOVE_INPUT_TOLERANCE = 1.1
 
 
 def resolve_dir(path: str, default_sub: str) -> Path:
-    """An output folder: ``path`` (``//`` or a relative path = beside the .blend) or, when
-    empty, ``//prosplat_<default_sub>``.
+    """An output folder: ``path`` (``//`` = beside the .blend; a plain relative path is
+    relative to the working folder, as scripts expect) or, when empty,
+    ``//prosplat_<default_sub>``.
 
     Raises:
         ValueError: the folder would be beside the .blend but the file was never saved: a
             silent fallback (the system temp folder) would hide the renders from the artist.
     """
     path = (path or "").strip() or f"//prosplat_{default_sub}"
-    absolute = Path(bpy.path.abspath(path))
-    if absolute.is_absolute() and not path.startswith("//"):
-        return absolute
-    if not bpy.data.filepath:
+    if path.startswith("//") and not bpy.data.filepath:
         raise ValueError(
             f"the .blend file is not saved, so '{path}' has no folder to be beside; save the "
-            "file or choose an absolute output folder"
+            "file or choose an output folder"
         )
-    return Path(bpy.path.abspath(path if path.startswith("//") else "//" + path))
+    return Path(bpy.path.abspath(path))
 
 
 # ---- posed images -----------------------------------------------------------------------------

@@ -194,9 +194,9 @@ def test_unsaved_file_has_no_default_output_folder(blank, tmp_path: Path) -> Non
     assert s.output_dir == "//prosplat_renders" and not bpy.data.filepath
     res, err = run_op(bpy.ops.prosplat.render_view)
     assert res == {"CANCELLED"} and "not saved" in err and "save the file" in err, err
-    for relative in ("", "renders"):
+    for blend_relative in ("", "//renders"):
         with pytest.raises(ValueError, match="not saved"):
-            steps.resolve_dir(relative, "renders")
+            steps.resolve_dir(blend_relative, "renders")
     s.output_dir = str(tmp_path / "chosen")
     assert run_op(bpy.ops.prosplat.render_view)[0] == {"FINISHED"}
     assert (tmp_path / "chosen" / "001.png").is_file()
