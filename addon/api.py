@@ -18,7 +18,7 @@ from pathlib import Path
 
 import bpy
 
-from . import capture, jobs, steps
+from . import capture, jobs, pointcloud, steps
 
 __all__ = [
     "capture_inputs",
@@ -35,8 +35,10 @@ def _scene(scene):
 
 
 def import_posed_images(path, images_dir=None, name=None, scene=None, set_resolution=True):
-    """Cameras (one per image, showing it) from a transforms.json or COLMAP text model, in a
-    new collection linked to the scene; returns the collection."""
+    """Cameras (one per image, showing it, named by its file stem) from a transforms.json or
+    COLMAP text model, in a new collection linked to the scene; returns the collection.
+    Frames marked ``"split": "target"`` go to a second collection of cameras to render
+    (``steps.targets_of(collection)``; ``render_views(..., mode="TARGETS")``)."""
     scene = _scene(scene)
     result = jobs.run_sync(*steps.posed_images_job(str(path), images_dir and str(images_dir)))
     name = name or steps.inputs_name(str(path))
@@ -61,16 +63,22 @@ def capture_inputs(cameras, folder, scene=None):
     return final, coll
 
 
-def reconstruct(inputs, name=None, collection=None, budget=None, scene=None, **options):
-    """Gaussian point-cloud object from the input collection's cameras and images.
+def reconstruct(inputs, name=None, collection=None, budget=None, scene=None, views=None,
+                **options):  # fmt: skip
+    """Gaussian point-cloud object from the input collection's checked cameras and images.
 
-    ``budget``: most Gaussians kept (None: the preference, 0: automatic). ``options`` may set
+    ``budget``: most Gaussians kept (None: the preference, 0: automatic). ``views``: how
+    to pick when more cameras are checked than the generator takes, ``"spread"`` or
+    ``"nearest"`` (the active camera) (None: the scene's setting); the object remembers the
+    views used (``steps.VIEWS_PROP``). ``options`` may set
     ``device``, ``weights``, ``max_size``, ``near``, ``far``, ``refine_seconds`` or
     ``refine_steps`` (fit the Gaussians to the inputs; 0: off) (defaults: the
     preferences/data).
     """
     scene = _scene(scene)
     task, params = steps.reconstruct_job(inputs, scene, budget=budget)
+    if views is not None:
+        params["view_choice"] = steps.view_choice(scene, views)
     params.update({k: v for k, v in options.items() if v is not None})
     if params.get("refine_steps"):
         params["refine_seconds"] = None  # a step count given here replaces the preference's time
@@ -81,18 +89,24 @@ def reconstruct(inputs, name=None, collection=None, budget=None, scene=None, **o
 
 def render_views(gaussians, cameras=None, output_dir="", mode="ACTIVE", scene=None, inputs=None,
                  enhance=None, save_raw=False, save_depth=False, load_images=True, **options):  # fmt: skip
-    """Render camera objects (or ``mode``: ACTIVE / SELECTED / FRAMES of the scene camera)
-    from ``gaussians``, enhanced when weights allow; returns the result dict (``views``: per
-    view the files written, the reference input, timings; ``warnings``)."""
+    """Render camera objects (or ``mode``: ACTIVE / SELECTED / FRAMES of the scene camera /
+    TARGETS imported with the inputs) from ``gaussians``, enhanced when weights allow, into
+    ``output_dir`` (empty: ``//prosplat_renders``, which needs a saved .blend); returns the
+    result dict (``views``: per view the files written, the reference input, timings;
+    ``warnings``, e.g. rendering above the input resolution)."""
     scene = _scene(scene)
+    if inputs is None:
+        inputs = bpy.data.collections.get(gaussians.get(pointcloud.INPUTS_PROP, ""))
     if cameras is not None:
         targets = steps.target_views(scene, "SELECTED", cameras)
     else:
-        targets = steps.target_views(scene, mode, bpy.context.selected_objects)
+        targets = steps.target_views(scene, mode, bpy.context.selected_objects, inputs=inputs)
     task, params = steps.render_job(gaussians, targets, scene, str(output_dir), None, inputs,
                                     enhance, save_raw, save_depth)  # fmt: skip
     params.update({k: v for k, v in options.items() if v is not None})
+    warnings = steps.resolution_warnings(gaussians, targets, inputs)
     result = jobs.run_sync(task, params)
+    result["warnings"] = [*warnings, *result.get("warnings", [])]
     if load_images:
         steps.apply_render(result, show=False)
     return result

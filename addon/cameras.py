@@ -16,6 +16,7 @@ from mathutils import Matrix
 
 IMAGE_PROP = "prosplat_image"
 SIZE_PROP = "prosplat_size"  # [w, h] of the camera's image
+USE_PROP = "prosplat_use"  # a registered Object bool: the input's *Use* box in the panel
 ASPECT_PROP = "prosplat_pixel_aspect"  # [x, y]
 
 
@@ -88,9 +89,23 @@ def input_cameras(collection) -> list:
     return sorted(cams, key=lambda o: o.name)
 
 
-def input_frames(collection, scene) -> list[dict[str, Any]]:
-    """Frames of every camera in ``collection``; raises naming each camera without an image."""
-    frames = [input_frame(o, scene) for o in input_cameras(collection)]
+def is_used(obj) -> bool:
+    """Whether an input camera's *Use* box is checked (True where the add-on's property is
+    not registered, e.g. a script that never enabled it)."""
+    return bool(getattr(obj, USE_PROP, True))
+
+
+def input_frames(collection, scene, used_only=False, names=None) -> list[dict[str, Any]]:
+    """Frames of the cameras in ``collection`` (``used_only``: those whose *Use* box is
+    checked; ``names``: those named, where they still exist); raises naming each camera
+    without an image."""
+    objs = input_cameras(collection)
+    if used_only:
+        objs = [o for o in objs if is_used(o)]
+    if names:
+        wanted = [o for o in objs if o.name in set(names)]
+        objs = wanted or objs  # renamed or deleted since: every camera lends texture
+    frames = [input_frame(o, scene) for o in objs]
     missing = [f["name"] for f in frames if not f["image"]]
     if missing:
         raise ValueError(

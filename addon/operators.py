@@ -15,6 +15,7 @@ RENDER_MODES = [
     ("ACTIVE", "Active Camera", "Render the scene camera"),
     ("SELECTED", "Selected Cameras", "Render every selected camera object"),
     ("FRAMES", "Frame Range", "Render the scene camera at every frame of the scene's range"),
+    ("TARGETS", "Target Cameras", "Render the target cameras imported with the inputs"),
 ]
 
 
@@ -46,7 +47,12 @@ class PROSPLAT_OT_import_posed_images(ImportHelper, modal.JobOperator, bpy.types
         name = steps.inputs_name(self.filepath)
         coll = steps.apply_posed_images(result, context.scene, name, self.set_resolution)
         settings(context).inputs = coll
-        return f"imported {len(coll.objects)} posed images into '{coll.name}'"
+        targets = steps.targets_of(coll)
+        if targets is None:
+            return f"imported {len(coll.objects)} posed images into '{coll.name}'"
+        settings(context).render_mode = "TARGETS"
+        return (f"imported {len(coll.objects)} input images into '{coll.name}' and "
+                f"{len(targets.objects)} target cameras into '{targets.name}'")  # fmt: skip
 
 
 class PROSPLAT_OT_reconstruct(modal.JobOperator, bpy.types.Operator):
@@ -78,11 +84,7 @@ class PROSPLAT_OT_reconstruct(modal.JobOperator, bpy.types.Operator):
         name = f"{s.inputs.name if s.inputs else 'ProSplat'} Gaussians"
         obj = steps.apply_gaussians(result, name, context.scene.collection, s.inputs)
         s.gaussians = obj
-        st = result.get("stats", {})
-        secs = result.get("seconds", {})
-        refined = f", refined {secs['refine']:.1f} s" if secs.get("refine") else ""
-        return (f"reconstructed {result['count']:,} Gaussians ({st.get('input', 0):,} before "
-                f"pruning{refined}) in {secs.get('total', 0):.1f} s")  # fmt: skip
+        return steps.describe_reconstruct(result)
 
 
 class PROSPLAT_OT_render_view(modal.JobOperator, bpy.types.Operator):
@@ -99,13 +101,16 @@ class PROSPLAT_OT_render_view(modal.JobOperator, bpy.types.Operator):
             obj = context.active_object
         if obj is None:
             raise ValueError("no Gaussian object chosen; reconstruct or import a PLY first")
-        targets = steps.target_views(context.scene, s.render_mode, context.selected_objects)
         # the views the Gaussians were made from lend the texture (else the panel's inputs)
-        own = bpy.data.collections.get(obj.get(pointcloud.INPUTS_PROP, ""))
+        own = bpy.data.collections.get(obj.get(pointcloud.INPUTS_PROP, "")) or s.inputs
+        targets = steps.target_views(context.scene, s.render_mode, context.selected_objects,
+                                     inputs=own)  # fmt: skip
+        self._warnings = steps.resolution_warnings(obj, targets, own)
         return steps.render_job(obj, targets, context.scene, s.output_dir, context,
-                                own or s.inputs, None, s.save_raw, s.save_depth)  # fmt: skip
+                                own, None, s.save_raw, s.save_depth)  # fmt: skip
 
     def apply(self, context, result):
+        result["warnings"] = [*getattr(self, "_warnings", []), *result.get("warnings", [])]
         steps.apply_render(result)
         return steps.describe_render(result)
 

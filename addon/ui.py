@@ -6,7 +6,7 @@ import importlib.util
 
 import bpy
 
-from . import modal, pointcloud, runtime
+from . import cameras, modal, pointcloud, runtime, steps
 from .operators import (
     PROSPLAT_OT_capture_inputs,
     PROSPLAT_OT_export_ply,
@@ -41,6 +41,24 @@ class PROSPLAT_PT_main(_Panel, bpy.types.Panel):
         row.label(text="External Python" if runtime.external_python(context) else "In Blender")
 
 
+class PROSPLAT_UL_views(bpy.types.UIList):
+    """The input cameras, each with its *Use* box; a dot marks the views the current
+    Gaussians were made from (Reconstruct's own choice, or the artist's)."""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_prop, index=0):
+        g = context.scene.prosplat.gaussians
+        used = set(g.get(steps.VIEWS_PROP, [])) if g is not None else set()
+        row = layout.row(align=True)
+        row.prop(item, cameras.USE_PROP, text=item.name)
+        row.label(text="", icon="LAYER_ACTIVE" if item.name in used else "BLANK1")
+
+    def filter_items(self, context, data, propname):
+        objs = getattr(data, propname)
+        flags = [self.bitflag_filter_item if o.type == "CAMERA" else 0 for o in objs]
+        order = bpy.types.UI_UL_list.sort_items_by_name(objs, "name")
+        return flags, order
+
+
 class PROSPLAT_PT_inputs(_Panel, bpy.types.Panel):
     bl_label = "Inputs"
     bl_parent_id = "PROSPLAT_PT_main"
@@ -49,6 +67,14 @@ class PROSPLAT_PT_inputs(_Panel, bpy.types.Panel):
         s = context.scene.prosplat
         layout = self.layout
         layout.prop(s, "inputs")
+        if s.inputs is not None:
+            layout.template_list("PROSPLAT_UL_views", "", s.inputs, "objects", s, "view_index",
+                                 rows=4)  # fmt: skip
+            targets = steps.targets_of(s.inputs)
+            if targets is not None:
+                layout.label(text=f"Targets: {targets.name} ({len(targets.objects)})",
+                             icon="OUTLINER_COLLECTION")  # fmt: skip
+        layout.prop(s, "background")
         layout.operator(PROSPLAT_OT_import_posed_images.bl_idname, icon="IMPORT")
         box = layout.box()
         box.label(text="Synthetic scene: render selected cameras")
@@ -67,6 +93,7 @@ class PROSPLAT_PT_reconstruct(_Panel, bpy.types.Panel):
             layout.prop(p, "budget")
             layout.prop(p, "refine_seconds")
             layout.prop(p, "max_input_size")
+        layout.prop(s, "view_choice")
         col = layout.column()
         col.enabled = s.inputs is not None
         col.operator(PROSPLAT_OT_reconstruct.bl_idname, icon="OUTLINER_OB_POINTCLOUD")
@@ -99,6 +126,8 @@ class PROSPLAT_PT_render(_Panel, bpy.types.Panel):
         s, layout = context.scene.prosplat, self.layout
         layout.prop(s, "render_mode")
         layout.prop(s, "output_dir", text="")
+        if not bpy.data.filepath and (not s.output_dir.strip() or s.output_dir.startswith("//")):
+            layout.label(text="Save the .blend file or choose a folder", icon="ERROR")
         row = layout.row()
         row.prop(s, "save_raw")
         row.prop(s, "save_depth")
@@ -121,6 +150,7 @@ def menu_export(self, context):
 
 
 CLASSES = (
+    PROSPLAT_UL_views,
     PROSPLAT_PT_main,
     PROSPLAT_PT_inputs,
     PROSPLAT_PT_reconstruct,

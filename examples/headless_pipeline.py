@@ -93,7 +93,9 @@ def main(argv: list[str]) -> int:
         bpy.ops.wm.read_factory_settings(use_empty=True)
         load_addon()
         inputs = api.import_posed_images(args.transforms)
-        target = sorted(inputs.objects, key=lambda o: o.name)[0]
+        # a scene folder's own target frames, else an input view (a sanity check)
+        targets = inputs.get("prosplat_targets") or inputs
+        target = sorted(targets.objects, key=lambda o: o.name)[0]
     else:
         cams, target = build_scene(args.size)
         folder, inputs = api.capture_inputs(cams, args.out / "capture")

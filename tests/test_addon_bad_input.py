@@ -26,12 +26,13 @@ def blank():
 
 @pytest.fixture
 def inputs(blank, tmp_path: Path):
-    """Two input cameras of the analytic demo scene, imported; returns the collection."""
+    """Two input cameras of the analytic demo scene, imported; returns the collection (view
+    001 is marked a target, so the inputs are 000 and 002: a wide baseline)."""
     write_synthetic_scene(tmp_path / "s", size=64, n_views=3)
     res, err = run_op(bpy.ops.prosplat.import_posed_images, filepath=str(tmp_path / "s"))
     assert res == {"FINISHED"}, err
     coll = bpy.context.scene.prosplat.inputs
-    bpy.data.objects.remove(coll.objects["001"])  # keep views 000 and 002: a wide baseline
+    assert sorted(coll.objects.keys()) == ["000", "002"]
     return coll
 
 

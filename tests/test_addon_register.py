@@ -51,7 +51,7 @@ def test_register_unregister_register_again(blank) -> None:
     addon.register()
     assert all(_registered().values())
     s = bpy.context.scene.prosplat
-    assert (s.render_mode, s.save_raw, s.output_dir) == ("ACTIVE", False, "//prosplat/renders")
+    assert (s.render_mode, s.save_raw, s.output_dir) == ("ACTIVE", False, "//prosplat_renders")
     # the File menus got exactly one entry each, even after re-registering
     funcs = [f.__name__ for f in bpy.types.TOPBAR_MT_file_import._dyn_ui_initialize()]
     assert funcs.count("menu_import") == 1
@@ -157,6 +157,11 @@ class _Layout:
     def _child(self, *a, **kw):
         return self
 
+    def template_list(self, listtype, list_id, data, propname, active_data, active_prop, **kw):
+        assert hasattr(bpy.types, listtype), listtype
+        assert hasattr(data, propname) and hasattr(active_data, active_prop), propname
+        self.log.append(("template_list", listtype))
+
     row = column = box = grid_flow = _child
 
 
@@ -168,15 +173,22 @@ def test_panels_and_menus_draw(blank, tmp_path: Path) -> None:
 
     write_ply(random_gaussians(10, 0), tmp_path / "g.ply")
     bpy.ops.prosplat.import_ply("EXEC_DEFAULT", filepath=str(tmp_path / "g.ply"))
+    inputs = bpy.data.collections.new("inputs")
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    inputs.objects.link(cam)
+    bpy.context.scene.prosplat.inputs = inputs
     log: list = []
     fake = type("Panel", (), {"layout": _Layout(log)})()
     modal.ACTIVE["reconstruct"] = type("D", (), {"job": type("J", (), {"progress": 0.5,
                                                                      "message": "x"})})()  # fmt: skip
     try:
         for cls in ui.CLASSES:
-            cls.draw(fake, bpy.context)
+            if issubclass(cls, bpy.types.Panel):
+                cls.draw(fake, bpy.context)
     finally:
         modal.ACTIVE.clear()
+    ui.PROSPLAT_UL_views.draw_item(fake, bpy.context, fake.layout, inputs, cam, 0, None, "")
+    assert ("template_list", "PROSPLAT_UL_views") in log and ("prop", "prosplat_use") in log
     ui.menu_import(fake, bpy.context)
     ui.menu_export(fake, bpy.context)
     preferences.draw_requirements(_Layout(log), type("Prefs", (), {"pip_args": ""})())

@@ -33,6 +33,7 @@ __all__ = [
     "camera_to_blender_dict",
     "camera_to_opencv_dict",
     "read_posed_images",
+    "unique_names",
 ]
 
 _BLENDER_KEYS = ("matrix_world", "lens", "sensor_width", "sensor_height", "sensor_fit",
@@ -42,12 +43,16 @@ _COLMAP_FILES = ("cameras.txt", "images.txt")
 
 @dataclass(frozen=True)
 class PosedImage:
-    """One posed image: a display ``name``, the ``image`` file (None if it was not found)
-    and its :class:`Camera`."""
+    """One posed image: a display ``name`` (the file's stem, unique within the file), the
+    ``image`` file (None if it was not found) and its :class:`Camera`. ``split`` and
+    ``target_kind`` are the frame's own (ProSplat's scene folders mark each frame ``input``
+    or ``target``, a target ``interpolation`` or ``extrapolation``); None when not given."""
 
     name: str
     image: Path | None
     camera: Camera
+    split: str | None = None
+    target_kind: str | None = None
 
 
 def camera_to_blender_dict(camera: Camera, sensor_width: float = 36.0) -> dict[str, Any]:
@@ -146,17 +151,36 @@ def read_posed_images(
     if model is not None:
         out = []
         dirs = _colmap_image_dirs(model, images_dir)
-        for im in read_colmap_text(model):
+        images = read_colmap_text(model)
+        for im, name in zip(images, unique_names([im.name for im in images]), strict=True):
             found = next((d / im.name for d in dirs if (d / im.name).is_file()), None)
-            out.append(PosedImage(Path(im.name).stem, found, im.camera))
+            out.append(PosedImage(name, found, im.camera))
         return out, {}
     tf = read_transforms(path)
     root = images_dir if images_dir is not None else tf.path.parent
     out = []
-    for frame in tf.frames:
-        out.append(PosedImage(Path(frame.file_path).stem, _find_image(root, frame.file_path),
-                              frame.camera))  # fmt: skip
+    names = unique_names([f.file_path for f in tf.frames])
+    for frame, name in zip(tf.frames, names, strict=True):
+        split, kind = frame.extra.get("split"), frame.extra.get("target_kind")
+        out.append(PosedImage(name, _find_image(root, frame.file_path), frame.camera,
+                              split if isinstance(split, str) else None,
+                              kind if isinstance(kind, str) else None))  # fmt: skip
     return out, dict(tf.meta)
+
+
+def unique_names(paths: list[str]) -> list[str]:
+    """Display names for image paths: the file stems, or where stems collide (``a/0.png``,
+    ``b/0.png``) the relative path with ``/`` as ``_``; made unique with ``-2``, ``-3``..."""
+    stems = [Path(p).stem for p in paths]
+    if len(set(stems)) != len(stems):
+        stems = [str(Path(p).with_suffix("")).replace("/", "_").replace("\\", "_")
+                 for p in paths]  # fmt: skip
+    seen: dict[str, int] = {}
+    out = []
+    for s in stems:
+        seen[s] = seen.get(s, 0) + 1
+        out.append(s if seen[s] == 1 else f"{s}-{seen[s]}")
+    return out
 
 
 def _find_image(root: Path, file_path: str) -> Path | None:

@@ -64,9 +64,10 @@ def load_model(weights: str | None, device: torch.device, improve: str | bool | 
     return _MODEL_CACHE[key]
 
 
-def load_frames(frames: list, progress: Progress, lo: float, hi: float):
-    """Images [N,3,H,W] and cameras of input frames, all at the first frame's size."""
-    from prosplat.image_io import read_image
+def load_frames(frames: list, progress: Progress, lo: float, hi: float, background=None):
+    """Images [N,3,H,W] and cameras of input frames, all at the first frame's size; RGBA
+    images composited over ``background`` ([3] in 0-1; None: over black)."""
+    from prosplat.image_io import composite, read_image_rgba
 
     if not isinstance(frames, list) or not frames:
         raise ValueError("no input views given; an input view needs an image and a camera")
@@ -77,7 +78,8 @@ def load_frames(frames: list, progress: Progress, lo: float, hi: float):
         if not isinstance(fr, dict) or not fr.get("image"):
             raise ValueError(f"input view '{name}' has no image; give every input camera an image")
         cam = camera_from_dict(fr.get("camera"), f"input view '{name}'")
-        img = read_image(fr["image"])
+        rgb, alpha = read_image_rgba(fr["image"])
+        img = composite(rgb, alpha, torch.tensor(background or (0.0, 0.0, 0.0)))
         if (img.shape[2], img.shape[1]) != (cam.width, cam.height):
             cam = cam.resized(img.shape[2], img.shape[1])  # the file is the truth for the size
         images.append(img)
@@ -129,6 +131,8 @@ def task_read_posed_images(params: dict, progress: Progress) -> dict:
             "name": p.name,
             "image": str(p.image) if p.image else None,
             "blender": camera_to_blender_dict(p.camera),
+            "split": p.split,
+            "target_kind": p.target_kind,
         }  # fmt: skip
         for p in posed
     ]
@@ -175,7 +179,11 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     device = pick_device(params.get("device"))
     progress(0.02, "loading the generator")
     model = load_model(params.get("weights"), device)
-    images, cameras = load_frames(params.get("frames"), progress, 0.1, 0.3)
+    from prosplat.view_choice import choose_frames
+
+    max_views = getattr(getattr(model.generator, "config", None), "max_views", 6)
+    frames, views = choose_frames(params.get("frames"), max_views, params.get("view_choice"))
+    images, cameras = load_frames(frames, progress, 0.1, 0.3, params.get("background"))
     if len(cameras) < 2:
         raise ValueError(f"reconstruction needs at least 2 input views, got {len(cameras)}")
     w, h = generator_size(cameras[0].width, cameras[0].height, params.get("max_size"))
@@ -204,7 +212,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     return {
         "count": len(g), "sh_degree": g.sh_degree, "stats": stats, "size": [w, h],
         "seconds": {"generator": t_gen, "refine": t_refine, "total": time.perf_counter() - t0},
-        "arrays": to_attributes(g),
+        "arrays": to_attributes(g), "views": [f.get("name") for f in frames], "view_reason": views,
     }  # fmt: skip
 
 
@@ -280,7 +288,7 @@ def task_render(params: dict, progress: Progress) -> dict:
         enhance = False
     images, in_cams = (None, [])
     if frames:
-        images, in_cams = load_frames(frames, progress, 0.05, 0.15)
+        images, in_cams = load_frames(frames, progress, 0.05, 0.15, params.get("background"))
         images = images.to(device)
     elif enhance:
         progress.warn("no input views to borrow texture from; saved raw renders instead")
