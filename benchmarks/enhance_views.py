@@ -27,8 +27,9 @@ from prosplat import ProSplat
 from prosplat.budget import prune_pixel_aligned
 from prosplat.data import find_scenes, load_scene
 from prosplat.data.scene import resize_views
-from prosplat.enhance import EnhanceOptions, enhance
+from prosplat.enhance import EnhanceOptions, enhance, render_view
 from prosplat.evaluate import pick_inputs
+from prosplat.flicker import camera_path, flicker
 from prosplat.image_io import write_image
 from prosplat.improve.mori import select_reference
 from prosplat.improve.pattern import fixed_pattern_score
@@ -41,8 +42,24 @@ def _departure(raw: torch.Tensor, out: torch.Tensor, alpha: torch.Tensor) -> flo
     return float((out - raw).abs().mean(0)[sure].mean()) if bool(sure.any()) else 0.0
 
 
-def measure(args: argparse.Namespace, changes: dict) -> list[dict]:
-    """Per-view rows; ``changes[(size, ws)]`` collects each enhanced - raw [3,H,W]."""
+def _flicker_row(model, g, inp_images, inp_cams, cams, scene, size, args) -> dict:
+    """Raw and enhanced flicker along a path between the scene's first two targets."""
+    t0, t1 = scene.target_indices[:2]
+    path = camera_path(cams[t0], cams[t1], args.flicker_frames)
+    raw, enhanced, depths = [], [], []
+    for cam in path:
+        v = render_view(g, cam, inp_images, inp_cams, model.improver)
+        raw.append(v.raw)
+        enhanced.append(v.image)
+        depths.append(v.depth)
+    raw_t, enh_t, d = torch.stack(raw), torch.stack(enhanced), torch.stack(depths)
+    f_raw, f_enh = flicker(raw_t, d, path), flicker(enh_t, d, path)
+    return {"scene": scene.folder.name, "size": size, "raw": f_raw, "enhanced": f_enh}
+
+
+def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list[dict]:
+    """Per-view rows; ``changes[(size, ws)]`` collects each enhanced - raw [3,H,W] and
+    ``flicker_rows`` each scene's flicker figures."""
     torch.manual_seed(0)
     model = ProSplat.from_pretrained()
     lpips = LPIPS()
@@ -62,6 +79,10 @@ def measure(args: argparse.Namespace, changes: dict) -> list[dict]:
             with torch.no_grad():
                 out = model.reconstruct_full(gen_images, gen_cams, near, far)
                 g = prune_pixel_aligned(out.gaussians(0), out.depths[0], gen_cams)[0]
+            if args.flicker_frames:
+                flicker_rows.append(
+                    _flicker_row(model, g, inp_images, inp_cams, cams, scene, size, args)
+                )
             for t in scene.target_indices:
                 cam, gt = cams[t], images[t]
                 with torch.no_grad():
@@ -142,12 +163,19 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="run the generator at most this high (default: the evaluation size)",
     )
+    p.add_argument(
+        "--flicker-frames",
+        type=int,
+        default=0,
+        help="also measure flicker along an N-frame path per scene (e.g. 24)",
+    )
     p.add_argument("--scenes", type=int, default=None, help="at most N scenes per root")
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     changes: dict = {}
-    rows = measure(args, changes)
+    flicker_rows: list[dict] = []
+    rows = measure(args, changes, flicker_rows)
     args.out.mkdir(parents=True, exist_ok=True)
     pattern = [
         "",
@@ -171,6 +199,19 @@ def main(argv: list[str] | None = None) -> int:
         w.writeheader()
         w.writerows(rows)
     text = summary(rows, args.working_sizes) + "\n".join(pattern)
+    if flicker_rows:
+        text += "\n\nFlicker along a path between two targets (prosplat.flicker)\n\n"
+        text += (
+            "| size | scenes | raw | enhanced | ratio (median of scenes) |\n|---|---|---|---|---|\n"
+        )
+        for size in sorted({r["size"] for r in flicker_rows}):
+            fr = [r for r in flicker_rows if r["size"] == size and r["raw"] == r["raw"]]
+            ratios = sorted(r["enhanced"] / r["raw"] for r in fr if r["raw"] > 0)
+            med = ratios[len(ratios) // 2] if ratios else math.nan
+            text += (
+                f"| {size} | {len(fr)} | {_mean(r['raw'] for r in fr):.4f} | "
+                f"{_mean(r['enhanced'] for r in fr):.4f} | {med:.2f} |\n"
+            )
     (args.out / "summary.md").write_text(text + "\n")
     print(text)
     return 0

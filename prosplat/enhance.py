@@ -72,7 +72,7 @@ class EnhanceOptions:
     working_size: int | None = None
     guard: bool = True
     min_coverage: float = 0.05
-    max_departure: float = 0.15
+    max_departure: float = 0.25
     confident_alpha: float = 0.9
 
     def __post_init__(self) -> None:
