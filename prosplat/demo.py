@@ -106,6 +106,7 @@ class ViewResult:
     mori_ms: float
     enhance_ms: float
     images: dict[str, Tensor] = field(default_factory=dict, repr=False)  # panels [3,H,W]
+    guard: str | None = None  # why the raw render was kept (prosplat.enhance's guard)
 
 
 @dataclass
@@ -281,6 +282,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
                 render_ms=view.timings["render_ms"],
                 mori_ms=view.timings["mori_ms"],
                 enhance_ms=view.timings["enhance_ms"],
+                guard=view.guard,
                 images={
                     "reference": images[inp[view.reference]],
                     "generator": raw,

@@ -118,6 +118,10 @@ def metrics_markdown(result: DemoResult) -> str:
             f"| {v.ssim_raw:.3f} → {v.ssim_enhanced:.3f} | {v.lpips_raw:.3f} → "
             f"{v.lpips_enhanced:.3f} | {v.render_ms:.0f} | {v.mori_ms + v.enhance_ms:.0f} |"
         )
+    guarded = [v for v in result.views if v.guard]
+    if guarded:
+        lines += ["", "Views where the guard kept the raw render:", ""]
+        lines += [f"- view {v.index}: {v.guard}" for v in guarded]
     lines += [
         "",
         "| targets | n | PSNR gen → enh | SSIM gen → enh | LPIPS gen → enh | ms/view raster "

@@ -19,7 +19,7 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
-from prosplat.enhance import EnhancedView, render_view
+from prosplat.enhance import EnhancedView, EnhanceOptions, render_view
 from prosplat.gaussians import Gaussians
 from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
 from prosplat.image_io import check_images
@@ -423,13 +423,16 @@ class ProSplat:
         reference_method: str = "paper",
         background: Tensor | None = None,
         dtype: torch.dtype = torch.float32,
+        options: EnhanceOptions | None = None,
     ) -> EnhancedView:
         """Render ``camera`` and enhance it with the improvement model.
 
         MORI picks the reference among the input ``cameras`` (``reference_method`` "paper" or
         "overlap"); ``images [N,3,H,W]`` are their images. ``enhance=False`` returns the raw
         render (``image is raw``, ``reference`` None). ``dtype=torch.bfloat16`` runs stage 2
-        under autocast.
+        under autocast. ``options`` (:class:`~prosplat.enhance.EnhanceOptions`) sets the
+        working size and the guard: a guarded view returns the raw render as ``image`` and the
+        reason in ``view.guard``.
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with
@@ -451,4 +454,5 @@ class ProSplat:
             reference_method=reference_method,
             background=background,
             dtype=dtype,
+            options=options,
         )
