@@ -43,7 +43,7 @@ def cmd_curate(args: argparse.Namespace) -> int:
         return 2
     path = curate(
         model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd,
-        refine_steps=args.refine_steps,
+        refine_steps=args.refine_steps, height=args.size,
     )  # fmt: skip
     print(f"curated set: {path.resolve()}")
     return 0
@@ -128,6 +128,13 @@ def add_train_parsers(train_sub) -> None:
         default=0,
         help="render refined scenes: N steps of prosplat.refine after the automatic budget "
         "(default 0: the generator's raw Gaussians)",
+    )
+    cu.add_argument(
+        "--size",
+        type=int,
+        default=None,
+        help="resize the views to this height first (e.g. 64 from 128-px scenes; default: as "
+        "rendered)",
     )
     cu.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     cu.set_defaults(func=cmd_curate)

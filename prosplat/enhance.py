@@ -129,11 +129,13 @@ def enhance(
     reference_camera: Camera | None,
     dtype: torch.dtype = torch.float32,
     working_size: int | None = None,
+    alpha: Tensor | None = None,
 ) -> Tensor:
     """Run ``improver`` on one render ``raw [3,H,W]`` with its reference; returns [3,H,W].
 
     Views larger than ``working_size`` (None: the model's ``config.working_size``; 0: no
     limit) are enhanced at that size and the change is carried up (module docstring).
+    ``alpha [H,W]`` is the render's coverage, for models with ``config.alpha_input``.
     ``dtype=torch.bfloat16`` runs under CPU/GPU autocast (the output is float32 again).
     """
     h, w = raw.shape[-2:]
@@ -141,15 +143,23 @@ def enhance(
     if size and max(h, w) > size:
         s = size / max(h, w)
         hs, ws = max(1, round(h * s)), max(1, round(w * s))
-        small = F.interpolate(
-            raw[None], size=(hs, ws), mode="bilinear", align_corners=False, antialias=True
-        )[0]  # [3,hs,ws]
+        stack = raw[None] if alpha is None else torch.cat([raw, alpha[None].to(raw)])[None]
+        stack = F.interpolate(
+            stack, size=(hs, ws), mode="bilinear", align_corners=False, antialias=True
+        )[0]  # [3 or 4,hs,ws]
+        small, small_alpha = stack[:3], (stack[3] if alpha is not None else None)
         change = _enhance_native(
-            improver, small, camera.resized(ws, hs), reference_image, reference_camera, dtype
+            improver,
+            small,
+            camera.resized(ws, hs),
+            reference_image,
+            reference_camera,
+            dtype,
+            small_alpha,
         ) - small.to(dtype=torch.float32)  # [3,hs,ws] on the model's device
         up = F.interpolate(change[None], size=(h, w), mode="bilinear", align_corners=False)[0]
         return (raw.to(up.device, torch.float32) + up).clamp(0.0, 1.0)
-    return _enhance_native(improver, raw, camera, reference_image, reference_camera, dtype)
+    return _enhance_native(improver, raw, camera, reference_image, reference_camera, dtype, alpha)
 
 
 def _enhance_native(
@@ -159,6 +169,7 @@ def _enhance_native(
     reference_image: Tensor | None,
     reference_camera: Camera | None,
     dtype: torch.dtype,
+    alpha: Tensor | None = None,
 ) -> Tensor:
     """The model on ``raw [3,H,W]`` at its own size (padded to the model's multiple)."""
     h, w = raw.shape[-2:]
@@ -172,8 +183,9 @@ def _enhance_native(
         ref_img, ref_cam = reference_at(reference_image.to(device), reference_camera, w, h)
         ref = pad_to_multiple(ref_img[None], m)
         fund = fundamental_matrix(camera, ref_cam)[None].to(device)  # float64: DWEA's precision
+    a = None if alpha is None else pad_to_multiple(alpha[None, None].to(device, x.dtype), m)
     with torch.autocast(device.type, dtype=dtype, enabled=dtype != torch.float32):
-        out = improver(x, ref, fund)
+        out = improver(x, ref, fund, a)
     return out.float()[0, :, :h, :w]
 
 
@@ -215,7 +227,14 @@ def render_view(
     t2 = time.perf_counter()
     with torch.no_grad():
         image = enhance(
-            improver, out.rgb, camera, images[ref], cameras[ref], dtype, options.working_size
+            improver,
+            out.rgb,
+            camera,
+            images[ref],
+            cameras[ref],
+            dtype,
+            options.working_size,
+            out.alpha,
         ).to(out.rgb.device)
     t3 = time.perf_counter()
     timings.update(mori_ms=1e3 * (t2 - t1), enhance_ms=1e3 * (t3 - t2))

@@ -78,10 +78,16 @@ def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
                              device="cpu")  # fmt: skip
     path = train_improve(cfg, progress=False, model_config=SMALL)
     model = load_improver(path)
-    assert model.config == SMALL.with_(timestep=199)
+    # the working size records the views' size the model was trained on
+    assert model.config == SMALL.with_(timestep=199, working_size=32)
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [1, 2, 3, 4]
     assert "val_psnr" in log[1] and "val_psnr_raw" in log[1]
+    # crops, flips and the alpha input train too (the curated set carries alpha)
+    aug = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "aug"), steps=2, batch=2,
+                             lpips_weight=0.0, crop=16, flip=True, alpha=True, device="cpu")  # fmt: skip
+    model = load_improver(train_improve(aug, progress=False, model_config=SMALL))
+    assert model.config.alpha_input and model.config.working_size == 32
     # resume to 6 steps: continues at step 4
     cfg6 = ImproveTrainConfig(**{**cfg.__dict__, "steps": 6})
     train_improve(cfg6, progress=False, model_config=SMALL)
@@ -200,3 +206,16 @@ def test_train_improve_on_a_local_sd_turbo_saves_merged_lora(setup, tmp_path) ->
     with pytest.raises(ValueError, match="--pretrained"):
         train_improve(ImproveTrainConfig(**{**cfg.__dict__, "init": str(path),
                                             "out": str(tmp_path / "x")}), progress=False)  # fmt: skip
+
+
+def test_curation_stores_alpha_and_resizes(setup, tmp_path) -> None:
+    root, gen_path, curated = setup
+    data = load_curated(curated)
+    assert data["alpha"].shape == (12, 32, 32)
+    assert 0 <= float(data["alpha"].float().min()) and float(data["alpha"].float().max()) <= 1
+    torch.manual_seed(0)
+    big = curate(
+        ProSplat.from_pretrained(gen_path, improve=False), root / "scenes",
+        tmp_path / "big.safetensors", views=(2,), progress=False, height=64,
+    )  # fmt: skip
+    assert load_curated(big)["render"].shape[-2:] == (64, 64)

@@ -57,6 +57,11 @@ class ImproveConfig:
             scale in a 1080p frame, and its bottleneck attention would grow with the square of
             the pixel count. 0 runs every view at its own size. Not an architecture
             parameter: it travels in the config so the weights say how to use them.
+        alpha_input: the render's alpha (where the Gaussians cover the view; holes are 0)
+            enters the VAE encoder of the render through a zero-initialised convolution added
+            to its first features, so the model knows where it must fill rather than guess
+            it from black pixels. Zero-initialised: weights without it load and behave the
+            same (:func:`prosplat.improve.io.load_improver` with ``alpha_input=True``).
     """
 
     vae_channels: tuple[int, ...] = (32, 64, 64)
@@ -79,6 +84,7 @@ class ImproveConfig:
     skip_init: float = 1e-5
     residual: bool = True
     working_size: int = 64
+    alpha_input: bool = False
 
     def __post_init__(self) -> None:
         for name in ("vae_channels", "unet_channels"):

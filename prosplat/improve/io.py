@@ -28,8 +28,11 @@ def save_improver(
     return write_checkpoint(model.state_dict(), path, meta, overwrite)
 
 
-def load_improver(path: str | Path, device=None) -> ImproveModel:
-    """The :class:`ImproveModel` a checkpoint written by :func:`save_improver` describes."""
+def load_improver(path: str | Path, device=None, alpha_input: bool = False) -> ImproveModel:
+    """The :class:`ImproveModel` a checkpoint written by :func:`save_improver` describes.
+
+    ``alpha_input=True`` adds the (zero-initialised) alpha input to weights trained without
+    it, to fine-tune them with alpha: the model then behaves exactly as before."""
     path = Path(path)
     state, meta = read_checkpoint(path, "improvement-model")
     if meta.get("format") != CHECKPOINT_FORMAT or "config" not in meta:
@@ -37,9 +40,13 @@ def load_improver(path: str | Path, device=None) -> ImproveModel:
             f"{path} is not an improvement-model checkpoint (format {meta.get('format')!r}); "
             "generator checkpoints load with ProSplat.from_pretrained(path)"
         )
-    model = ImproveModel(ImproveConfig.from_json(meta["config"]))
+    config = ImproveConfig.from_json(meta["config"])
+    adding = alpha_input and not config.alpha_input
+    model = ImproveModel(config.with_(alpha_input=True) if adding else config)
     try:
-        model.load_state_dict(state, strict=True)
+        missing, unexpected = model.load_state_dict(state, strict=not adding)
+        if adding and (unexpected or any(not k.startswith("alpha_in.") for k in missing)):
+            raise RuntimeError(f"missing {missing}, unexpected {unexpected}")
     except RuntimeError as e:
         raise ValueError(f"{path} does not match the improvement model it describes: {e}") from e
     model.eval()

@@ -114,6 +114,12 @@ class ImproveModel(nn.Module):
                 conv = nn.Conv2d(enc_in[len(enc_in) - 1 - k], c_dec, 1, bias=False)
                 nn.init.constant_(conv.weight, config.skip_init)
                 self.skip_convs.append(conv)
+        self.alpha_in = None
+        if config.alpha_input:
+            # [B,1,H,W] alpha -> the encoder's first features; zero start = "alpha unknown"
+            self.alpha_in = nn.Conv2d(1, self.vae.config.block_out_channels[0], 3, padding=1)
+            nn.init.zeros_(self.alpha_in.weight)
+            nn.init.zeros_(self.alpha_in.bias)
         if config.residual:
             nn.init.zeros_(self.vae.decoder.conv_out.weight)
             nn.init.zeros_(self.vae.decoder.conv_out.bias)
@@ -141,15 +147,20 @@ class ImproveModel(nn.Module):
 
     def num_parameters(self) -> dict[str, int]:
         parts = {"vae": self.vae, "unet": self.unet, "skip_convs": self.skip_convs}
+        if self.alpha_in is not None:
+            parts["alpha_in"] = self.alpha_in
         if self.dwea is not None:
             parts.update(dwea=self.dwea, injection=self.injection)
         return {k: sum(p.numel() for p in m.parameters()) for k, m in parts.items()}
 
     # ---- VAE with skips ---------------------------------------------------------------------
-    def encode(self, images: Tensor) -> tuple[Tensor, list[Tensor]]:
-        """images [B,3,H,W] in [0,1] -> (scaled latent mode [B,c,h,w], encoder block inputs)."""
+    def encode(self, images: Tensor, alpha: Tensor | None = None) -> tuple[Tensor, list[Tensor]]:
+        """images [B,3,H,W] in [0,1] (+ alpha [B,1,H,W] with ``config.alpha_input``) ->
+        (scaled latent mode [B,c,h,w], encoder block inputs)."""
         enc = self.vae.encoder
         x = enc.conv_in(images * 2.0 - 1.0)
+        if alpha is not None and self.alpha_in is not None:
+            x = x + self.alpha_in(alpha.to(x.dtype))
         skips = []
         for block in enc.down_blocks:
             skips.append(x)
@@ -236,6 +247,7 @@ class ImproveModel(nn.Module):
         render: Tensor,
         reference: Tensor | None = None,
         fundamental: Tensor | None = None,
+        alpha: Tensor | None = None,
     ) -> Tensor:
         """Enhance ``render [B,3,H,W]`` in [0,1].
 
@@ -243,12 +255,16 @@ class ImproveModel(nn.Module):
             reference: the MORI reference views [B,3,H,W] (required when config.reference).
             fundamental: F [B,3,3] with x_refᵀ F x_render = 0 in pixels; None or all-zero
                 (pure rotation, coincident cameras) makes DWEA plain attention.
+            alpha: the render's alpha [B,1,H,W] (used with ``config.alpha_input``; None there
+                is read as fully covered).
 
         Returns:
             The enhanced images [B,3,H,W], clamped to [0,1].
         """
         self._check(render, reference)
-        z, skips = self.encode(render)
+        if self.alpha_in is not None and alpha is None:
+            alpha = torch.ones_like(render[:, :1])
+        z, skips = self.encode(render, alpha)
         emb = self._time_embedding(z)
         context = self.prompt_embedding.to(z.dtype).expand(z.shape[0], -1, -1)
         x, res = self._contract(z, emb, context)

@@ -276,7 +276,10 @@ def true_depth_view(state, cam: Camera, inp: SceneInputs, improver=None, dtype=N
         return View(raw, out.depth, out.alpha, info={"gaussians": len(surface)})
     j = select_reference(cam, inp.cameras, method="paper")
     with torch.no_grad():
-        image = enhance(improver, raw, cam, inp.images[j], inp.cameras[j], dtype or torch.float32)
+        image = enhance(
+            improver, raw, cam, inp.images[j], inp.cameras[j], dtype or torch.float32,
+            alpha=out.alpha,
+        )  # fmt: skip
     return View(image, out.depth, out.alpha, info={"reference": j, "gaussians": len(surface)})
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -19,7 +20,7 @@ from torch import Tensor
 from prosplat.budget import prune_pixel_aligned
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import find_scenes
-from prosplat.data.scene import load_scene
+from prosplat.data.scene import load_scene, resize_views
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
@@ -30,7 +31,8 @@ CURATED_FORMAT = "prosplat-curated"
 KINDS = ("interpolation", "extrapolation")
 METHODS = ("paper", "overlap")
 
-#: Per sample: images [S,3,H,W] (float16 in [0,1]), F [S,3,3], kind/inputs/scene [S] int.
+#: Per sample: images [S,3,H,W] (float16 in [0,1]), alpha [S,H,W] (float16), F [S,3,3],
+#: kind/inputs/scene [S] int.
 CuratedSet = dict[str, Tensor]
 
 
@@ -66,6 +68,7 @@ def curate_scene(
             with torch.no_grad():
                 out = render(gaussians, cam, background=torch.zeros(3))
             put("render", out.rgb.half())
+            put("alpha", out.alpha.half())
             put("target", scene.images[t].half())
             put("kind", torch.tensor(KINDS.index(scene.target_kinds[t] or "interpolation")))
             put("inputs", torch.tensor(n))
@@ -87,9 +90,12 @@ def curate(
     progress: bool = True,
     command: str = "",
     refine_steps: int = 0,
+    height: int | None = None,
 ) -> Path:
     """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
-    ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`)."""
+    ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`); ``height``:
+    views resized to this height first (antialiased, as the ladder evaluates), so one set of
+    128-px scenes serves a 64-px model."""
     if int(refine_steps) != refine_steps or refine_steps < 0:
         raise ValueError(f"refine_steps must be an integer >= 0 (0: off), got {refine_steps}")
     from tqdm import tqdm
@@ -104,6 +110,9 @@ def curate(
     size = None
     for s, folder in enumerate(tqdm(folders, desc="curating", unit="scene", disable=not progress)):
         scene = load_scene(folder, load_depth=False)
+        if height is not None:
+            images, cameras = resize_views(scene.images, scene.cameras, height)
+            scene = replace(scene, images=images, cameras=cameras)
         hw = tuple(scene.images.shape[-2:])
         if size is not None and hw != size:
             raise ValueError(
@@ -125,6 +134,7 @@ def curate(
         "scenes": json.dumps([f.name for f in folders]),
         "views": json.dumps(list(views)),
         "refine_steps": str(int(refine_steps)),
+        "height": str(height or ""),
         "command": command,
     }
     return write_checkpoint(tensors, out, meta, overwrite)

@@ -25,6 +25,7 @@ from torch import Tensor
 from prosplat.improve.config import preset
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel
+from prosplat.train.augment import augment_samples
 from prosplat.train.common import (
     Dist,
     load_checkpoint,
@@ -64,6 +65,9 @@ class ImproveTrainConfig:
     save_every: int = 500
     seed: int = 0
     device: str = "auto"
+    crop: int = 0  # random square crops of this size (0: whole views; prosplat.train.augment)
+    flip: bool = False  # random horizontal flips (the fundamental matrices follow)
+    alpha: bool = False  # give the model the render's alpha (needs a set curated with alpha)
 
 
 @dataclass(frozen=True)
@@ -171,8 +175,17 @@ def validate_improver(model: ImproveModel, data, method: str, device, limit: int
     model.eval()
     idx = torch.arange(min(limit, data["render"].shape[0]))
     raw, ref, fund, gt = curated_batch(data, idx, method, device)
+    alpha = data["alpha"][idx].float().to(device)[:, None] if "alpha" in data else None
     enh = torch.cat(
-        [model(raw[i : i + 8], ref[i : i + 8], fund[i : i + 8]) for i in range(0, len(idx), 8)]
+        [
+            model(
+                raw[i : i + 8],
+                ref[i : i + 8],
+                fund[i : i + 8],
+                None if alpha is None else alpha[i : i + 8],
+            )  # fmt: skip
+            for i in range(0, len(idx), 8)
+        ]
     )
     model.train(was)
     return {
@@ -205,7 +218,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             )
         model = from_diffusers(cfg.pretrained, timestep=cfg.timestep, reference=cfg.reference)
     elif cfg.init:
-        model = load_improver(cfg.init)
+        model = load_improver(cfg.init, alpha_input=cfg.alpha)
         asked = {"timestep": cfg.timestep, "denoise": cfg.denoise, "reference": cfg.reference}
         have = {k: getattr(model.config, k) for k in asked}
         if have != asked:
@@ -216,10 +229,27 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
     else:
         base = model_config or preset(cfg.config)
         model = ImproveModel(
-            base.with_(timestep=cfg.timestep, denoise=cfg.denoise, reference=cfg.reference)
+            base.with_(
+                timestep=cfg.timestep,
+                denoise=cfg.denoise,
+                reference=cfg.reference,
+                alpha_input=cfg.alpha,
+            )
         )
     model.to(device).train()
     data = load_curated(cfg.data)
+    if cfg.alpha and "alpha" not in data:
+        raise ValueError(
+            f"--alpha needs a curated set with the renders' alpha; {cfg.data} has none "
+            "(curate it again with this version of `prosplat train curate`)"
+        )
+    if cfg.crop and cfg.crop % model.config.size_multiple:
+        raise ValueError(
+            f"--crop must be a multiple of {model.config.size_multiple}, got {cfg.crop}"
+        )
+    # the views' size, not the crops': the model learns textures at the scale of whole views
+    model.config = model.config.with_(working_size=max(data["render"].shape[-2:]))
+    augment_rng = torch.Generator().manual_seed(cfg.seed + 1)
     val = load_curated(cfg.val) if cfg.val and dist.is_main else None
     params = [p for p in model.parameters() if p.requires_grad]
     run = _Run(cfg, dist, params, model.state_dict, progress, "train improve")
@@ -231,10 +261,14 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
     try:
         while run.step < cfg.steps:
             _, idx = step_indices(n, cfg.batch, cfg.seed, run.step, dist.rank, dist.world_size)
-            raw, ref, fund, gt = curated_batch(
-                data, torch.tensor(idx), cfg.reference_method, device
-            )
-            loss, parts = enhance_loss(net(raw, ref, fund), gt, lpips_fn, cfg.lpips_weight)
+            index = torch.tensor(idx)
+            raw, ref, fund, gt = curated_batch(data, index, cfg.reference_method, device)
+            alpha = data["alpha"][index].float().to(device)[:, None] if cfg.alpha else None
+            if cfg.crop or cfg.flip:
+                raw, ref, fund, gt, alpha = augment_samples(
+                    raw, ref, fund, gt, alpha, cfg.crop, cfg.flip, augment_rng
+                )
+            loss, parts = enhance_loss(net(raw, ref, fund, alpha), gt, lpips_fn, cfg.lpips_weight)
             extra = {}
             if val is not None and (run.step + 1) % cfg.val_every == 0:
                 extra = validate_improver(model, val, cfg.reference_method, device)

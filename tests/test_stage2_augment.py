@@ -1,0 +1,82 @@
+"""Stage-2 training augmentation (crops and flips with the fundamental matrix carried along)
+and the alpha input, against epipolar geometry computed from the cameras themselves."""
+
+from __future__ import annotations
+
+import torch
+
+from prosplat.camera import Camera
+from prosplat.improve.config import ImproveConfig
+from prosplat.improve.epipolar import fundamental_matrix
+from prosplat.improve.model import ImproveModel
+from prosplat.train.augment import augment_samples
+
+
+def _pair() -> tuple[Camera, Camera, torch.Tensor]:
+    a = Camera.look_at([0.0, 0.0, -3.0], [0, 0, 0], [0, -1, 0], 60.0, 64, 64)
+    b = Camera.look_at([1.5, 0.3, -2.5], [0, 0, 0], [0, -1, 0], 60.0, 64, 64)
+    g = torch.Generator().manual_seed(0)
+    points = (torch.rand(200, 3, generator=g, dtype=torch.float64) - 0.5) * 1.5
+    return a, b, points
+
+
+def _h(uv: torch.Tensor) -> torch.Tensor:
+    return torch.cat([uv, torch.ones_like(uv[:, :1])], 1)
+
+
+def test_cropped_and_flipped_fundamental_matrix_keeps_points_on_their_epipolar_lines():
+    a, b, points = _pair()
+    F = fundamental_matrix(a, b).double()  # x_b^T F x_a = 0
+    uv_a, _ = a.project(points)
+    uv_b, _ = b.project(points)
+    assert (_h(uv_b) * (F @ _h(uv_a).T).T).sum(1).abs().max() < 1e-6
+    for seed in range(6):
+        rng = torch.Generator().manual_seed(seed)
+        # a marker image per camera tells where each crop window started and whether it flipped
+        ramp = torch.arange(64, dtype=torch.float32)
+        mark = torch.stack(
+            [ramp[None].expand(64, 64), ramp[:, None].expand(64, 64), torch.zeros(64, 64)]
+        )
+        r, ref, f, t, al = augment_samples(
+            mark[None],
+            mark[None] + 0.0,
+            F[None],
+            mark[None],
+            torch.ones(1, 1, 64, 64),
+            48,
+            True,
+            rng,
+        )
+        assert r.shape == (1, 3, 48, 48) and al.shape == (1, 1, 48, 48)
+        assert torch.equal(r, t)  # render and ground truth share their window
+
+        # recover each image's map x' = T x from its marker: column index and flip
+        def mapping(x):
+            cols, rows = x[0, 0, 0], x[0, 1, :, 0]
+            ox, oy = float(cols.min()), float(rows[0])
+            flipped = bool(cols[0] > cols[-1])
+            return ox, oy, flipped
+
+        def apply(uv, m):
+            ox, oy, flipped = m
+            u, v = uv[:, 0] - ox, uv[:, 1] - oy
+            return torch.stack([48 - u if flipped else u, v], 1)
+
+        m_r, m_ref = mapping(r), mapping(ref)
+        res = (_h(apply(uv_b, m_ref)) * (f[0].double() @ _h(apply(uv_a, m_r)).T).T).sum(1)
+        assert res.abs().max() < 1e-6, seed
+
+
+def test_alpha_input_starts_as_identity_and_then_matters():
+    torch.manual_seed(0)
+    cfg = ImproveConfig(alpha_input=True)
+    model = ImproveModel(cfg).eval()
+    x, ref = torch.rand(1, 3, 32, 32), torch.rand(1, 3, 32, 32)
+    F = torch.zeros(1, 3, 3, dtype=torch.float64)
+    holes = torch.ones(1, 1, 32, 32)
+    holes[..., 8:16, 8:16] = 0
+    with torch.no_grad():
+        assert torch.equal(model(x, ref, F, holes), model(x, ref, F))  # zero-initialised
+        torch.nn.init.normal_(model.alpha_in.weight)
+        torch.nn.init.normal_(model.vae.decoder.conv_out.weight, std=0.1)
+        assert not torch.allclose(model(x, ref, F, holes), model(x, ref, F))
