@@ -354,3 +354,21 @@ def test_native_object_builds_and_reads_back(blank) -> None:
     for key in ("position", "opacity", "rot_0", "scale_2", "f_dc_1"):
         np.testing.assert_array_equal(back[key], arrays[key])
     assert native_splats.supported() == (bpy.app.version >= (5, 3, 0))
+
+
+def test_panel_rows_resolve(blank) -> None:
+    """The Gaussians panel shows Sigma, Max Size, Viewport Points and Show in Renders."""
+    obj = _generated(RED_GREEN)
+    rows: list[tuple[str, object]] = []
+
+    class Layout:
+        def prop(self, data, path, text="", **kw):
+            rows.append((text, data.path_resolve(path)))
+
+        def label(self, text="", **kw):
+            rows.append((text, None))
+
+    splat_display.draw_settings(Layout(), obj)
+    texts = [t for t, _ in rows]
+    assert texts == [*splat_display.SOCKETS, "Show in Renders", "2 Gaussians"]
+    assert dict(rows)["Show in Renders"] is True  # hide_render (the checkbox is inverted)
