@@ -6,7 +6,7 @@ import importlib.util
 
 import bpy
 
-from . import cameras, modal, pointcloud, runtime, steps
+from . import cameras, modal, pointcloud, runtime, splat_display, steps
 from .operators import (
     PROSPLAT_OT_capture_inputs,
     PROSPLAT_OT_export_ply,
@@ -107,12 +107,8 @@ class PROSPLAT_PT_gaussians(_Panel, bpy.types.Panel):
         s, layout = context.scene.prosplat, self.layout
         layout.prop(s, "gaussians")
         obj = s.gaussians
-        mod = obj.modifiers.get(pointcloud.MODIFIER) if obj is not None else None
-        if mod is not None and mod.node_group is not None:
-            for item in mod.node_group.interface.items_tree:
-                if getattr(item, "in_out", "") == "INPUT" and item.name == pointcloud.RADIUS_SOCKET:
-                    layout.prop(mod, f'["{item.identifier}"]', text="Point Radius")
-            layout.label(text=f"{len(obj.data.vertices):,} Gaussians", icon="INFO")
+        if obj is not None:
+            splat_display.draw_settings(layout, obj)
         row = layout.row(align=True)
         row.operator(PROSPLAT_OT_import_ply.bl_idname, text="Import PLY", icon="IMPORT")
         row.operator(PROSPLAT_OT_export_ply.bl_idname, text="Export PLY", icon="EXPORT")

@@ -34,6 +34,8 @@ import contextlib
 import os
 import re
 import secrets
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +63,30 @@ _F_DC = ("f_dc_0", "f_dc_1", "f_dc_2")
 _SCALES = ("scale_0", "scale_1", "scale_2")
 _QUATS = ("rot_0", "rot_1", "rot_2", "rot_3")
 _REQUIRED = (*_MEANS, *_F_DC, "opacity", *_SCALES, *_QUATS)
+#: Vertex properties read_ply knows but does not keep: INRIA's (always zero) normals.
+_IGNORED = frozenset({"nx", "ny", "nz"})
+
+
+class PlyWarning(UserWarning):
+    """Something in a PLY that :func:`read_ply` read past (e.g. properties it drops)."""
+
+
+def _dropped_message(path: Path, props: list[str], elements: list[str]) -> str | None:
+    """One line naming what the file holds that a 3DGS reader drops, or None.
+
+    Splat editors add their own data (SuperSplat a ``transform``, others per-splat ids,
+    selection flags or colours); a user who moved or edited splats there should learn that it
+    is not applied here rather than find it silently gone.
+    """
+    parts = []
+    if props:
+        shown = ", ".join(props[:8]) + (f" and {len(props) - 8} more" if len(props) > 8 else "")
+        parts.append(f"vertex properties {shown}")
+    if elements:
+        parts.append(f"elements {', '.join(elements)}")
+    if not parts:
+        return None
+    return f"{path.name}: dropped {' and '.join(parts)} (not part of a 3DGS Gaussian)"
 
 
 # ---- encodings ----------------------------------------------------------------------------
@@ -223,12 +249,17 @@ def read_ply(
     path: str | os.PathLike[str],
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
+    on_warning: Callable[[str], None] | None = None,
+    allow_empty: bool = False,
 ) -> Gaussians:
     """Read a 3DGS PLY written by prosplat or another splat tool.
 
     Accepts SH degree 0-3 (from the number of ``f_rest_*`` properties: 0, 9, 24 or 45; none
-    at all is degree 0), properties in any order, extra properties (normals, custom fields:
-    ignored), ASCII or binary little/big endian, and any numeric property type. Opacity is
+    at all is degree 0), properties in any order, ASCII or binary little/big endian, and any
+    numeric property type. Extra properties and elements (custom fields, SuperSplat's
+    ``transform``, ...) are dropped with one warning naming them: ``on_warning(message)`` if
+    given (the add-on's worker passes its report), else a :class:`PlyWarning`. INRIA's
+    normals ``nx ny nz`` are dropped silently (they are always zero). Opacity is
     passed through a sigmoid and scales through exp, both in float64 before the cast to
     ``dtype``, so a file from :func:`write_ply` decodes to the values that were written.
 
@@ -236,11 +267,14 @@ def read_ply(
     that all-zero rows become (1, 0, 0, 0): some tools write zeros for "no rotation", and a
     zero quaternion has no rotation to keep, while :class:`Gaussians` rejects it.
 
+    A file with no Gaussians is refused unless ``allow_empty``: an importer that made an
+    empty object would hide the real problem (a failed export upstream).
+
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        ValueError: not a PLY, no ``vertex`` element, a required property missing, an
-            unsupported number of ``f_rest_*``, or a NaN/Inf value (the message names the
-            property and the file).
+        ValueError: not a PLY, no ``vertex`` element, no vertices (unless ``allow_empty``), a
+            required property missing, an unsupported number of ``f_rest_*``, or a NaN/Inf
+            value (the message names the property and the file).
     """
     if not dtype.is_floating_point:
         raise ValueError(f"read_ply needs a floating-point dtype, got {dtype}")
@@ -287,9 +321,26 @@ def read_ply(
                 "f_dc_0-2, opacity, scale_0-2, rot_0-3 and f_rest_0.. for SH degree > 0"
             )
 
+    n = len(data)
+    if n == 0 and not allow_empty:
+        raise ValueError(
+            f"{path} holds 0 Gaussians (element vertex 0); nothing to import - re-export it "
+            "from the tool that made it"
+        )
+    known = {*_REQUIRED, *rest_names, *_IGNORED}
+    dropped = _dropped_message(
+        path,
+        [p.name for p in vertex.properties if p.name not in known],
+        [name for name in elements if name != "vertex"],
+    )
+    if dropped is not None:
+        if on_warning is not None:
+            on_warning(dropped)
+        else:
+            warnings.warn(dropped, PlyWarning, stacklevel=2)
+
     # float32 targets are filled directly (one rounding); others go through float64 first.
     fill = np.float32 if dtype == torch.float32 else np.float64
-    n = len(data)
     k = (_DEGREE_BY_REST_COUNT[rest_count] + 1) ** 2
     # SH coefficients in [K, 3] order; f_rest is channel-major: f_rest_{c(K-1) + j-1} = sh[j, c].
     sh_names = [*_F_DC, *np.array(rest_names, dtype=object).reshape(3, k - 1).T.ravel()]

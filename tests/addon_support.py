@@ -45,10 +45,14 @@ def data_counts() -> dict[str, int]:
     return {k: len(getattr(bpy.data, k)) for k in kinds}
 
 
-def evaluated_points(obj):
-    """The PointCloud the Geometry Nodes modifier makes from ``obj`` (4.2 and 5.0)."""
+def evaluated_instances(obj) -> list:
+    """World matrices (4x4 numpy) of the instances the display modifier makes from ``obj``,
+    in the viewport's depsgraph (where ``Is Viewport`` is true)."""
+    import numpy as np
+
     depsgraph = bpy.context.evaluated_depsgraph_get()
-    for inst in depsgraph.object_instances:
-        if inst.object.type == "POINTCLOUD" and inst.object.original == obj:
-            return inst.object.data
-    return None
+    return [
+        np.array(inst.matrix_world)
+        for inst in depsgraph.object_instances
+        if inst.is_instance and inst.parent is not None and inst.parent.original == obj
+    ]

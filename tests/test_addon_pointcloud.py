@@ -1,5 +1,5 @@
-"""Gaussians as a Blender point cloud: PLY import/export through the operators, the Geometry
-Nodes display, and how long a big import takes."""
+"""Gaussians as a Blender point cloud: PLY import/export through the operators and how long a
+big import takes (the display: test_addon_splat_display.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import torch
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import data_counts, evaluated_points, reset_scene, run_op  # noqa: E402
+from addon_support import data_counts, reset_scene, run_op  # noqa: E402
 from test_worker import random_gaussians  # noqa: E402
 
 from prosplat import read_ply, write_ply  # noqa: E402
@@ -38,36 +38,12 @@ def test_ply_import_export_round_trip_exact(blank, tmp_path: Path, degree: int) 
     mesh = obj.data
     assert len(mesh.vertices) == 3000 and obj["prosplat_kind"] == "gaussians"
     names = {a.name for a in mesh.attributes}
-    assert {"opacity", "scale_2", "rot_3", "f_dc_0", "color"} <= names
+    assert {"opacity", "scale_2", "rot_3", "f_dc_0", "splat_color"} <= names
     assert sum(n.startswith("f_rest_") for n in names) == 3 * ((degree + 1) ** 2 - 1)
     bpy.context.view_layer.objects.active = obj
     res, err = run_op(bpy.ops.prosplat.export_ply, filepath=str(tmp_path / "out.ply"))
     assert res == {"FINISHED"}, err
     assert (tmp_path / "in.ply").read_bytes() == (tmp_path / "out.ply").read_bytes()
-
-
-def test_points_show_radius_and_colour(blank, tmp_path: Path) -> None:
-    g = random_gaussians(500, 1)
-    write_ply(g, tmp_path / "in.ply")
-    obj = _import(tmp_path / "in.ply")
-    pc = evaluated_points(obj)
-    assert pc is not None and len(pc.points) == 500
-    radius = np.empty(500, np.float32)
-    pc.attributes["radius"].data.foreach_get("value", radius)
-    expected = read_ply(tmp_path / "in.ply").scales.max(dim=1).values.numpy()
-    np.testing.assert_allclose(radius, expected, rtol=1e-5)
-    assert pc.materials[0].name == "ProSplat Gaussian"
-    color = np.empty(500 * 4, np.float32)
-    pc.attributes["color"].data.foreach_get("color", color)
-    np.testing.assert_allclose(color.reshape(500, 4)[:, 3], g.opacities.numpy(), rtol=1e-6)
-    # the radius scale on the modifier reaches the points
-    mod = obj.modifiers["ProSplat Points"]
-    sock = next(s for s in mod.node_group.interface.items_tree if s.name == "Radius Scale")
-    mod[sock.identifier] = 2.0
-    obj.update_tag()
-    radius2 = np.empty(500, np.float32)
-    evaluated_points(obj).attributes["radius"].data.foreach_get("value", radius2)
-    np.testing.assert_allclose(radius2, 2 * expected, rtol=1e-5)
 
 
 def test_moved_object_exports_moved_gaussians(blank, tmp_path: Path) -> None:

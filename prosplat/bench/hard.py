@@ -131,7 +131,7 @@ def _ply_round_trip(gaussians) -> dict[str, Tensor]:
     with tempfile.TemporaryDirectory(prefix="prosplat-hard-") as tmp:
         path = Path(tmp) / "gaussians.ply"
         write_ply(gaussians, path)
-        back = read_ply(path)
+        back = read_ply(path, allow_empty=True)  # a hard case may keep no Gaussians
     return {f"ply.{k}": v for k, v in back.tensors().items()}
 
 

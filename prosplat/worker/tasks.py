@@ -156,7 +156,7 @@ def task_import_ply(params: dict, progress: Progress) -> dict:
     from prosplat.ply import read_ply
 
     progress(0.1, "reading PLY")
-    g = read_ply(params["path"], dtype=torch.float64)
+    g = read_ply(params["path"], dtype=torch.float64, on_warning=progress.warn)
     progress(0.6, "converting")
     return {"count": len(g), "sh_degree": g.sh_degree, "arrays": to_attributes(g)}
 
