@@ -42,26 +42,31 @@ def _departure(raw: torch.Tensor, out: torch.Tensor, alpha: torch.Tensor) -> flo
     return float((out - raw).abs().mean(0)[sure].mean()) if bool(sure.any()) else 0.0
 
 
-def _flicker_row(model, g, inp_images, inp_cams, cams, scene, size, args) -> dict:
-    """Raw and enhanced flicker along a path between the scene's first two targets."""
+def _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args) -> dict:
+    """Raw and enhanced flicker (per improver, default options) along a path between the
+    scene's first two targets."""
     t0, t1 = scene.target_indices[:2]
     path = camera_path(cams[t0], cams[t1], args.flicker_frames)
-    raw, enhanced, depths = [], [], []
-    for cam in path:
-        v = render_view(g, cam, inp_images, inp_cams, model.improver)
-        raw.append(v.raw)
-        enhanced.append(v.image)
-        depths.append(v.depth)
-    raw_t, enh_t, d = torch.stack(raw), torch.stack(enhanced), torch.stack(depths)
-    f_raw, f_enh = flicker(raw_t, d, path), flicker(enh_t, d, path)
-    return {"scene": scene.folder.name, "size": size, "raw": f_raw, "enhanced": f_enh}
+    row = {"scene": scene.folder.name, "size": size}
+    for label, improver in improvers.items():
+        frames, raw, depths = [], [], []
+        for cam in path:
+            v = render_view(g, cam, inp_images, inp_cams, improver)
+            frames.append(v.image)
+            raw.append(v.raw)
+            depths.append(v.depth)
+        d = torch.stack(depths)
+        row["raw"] = flicker(torch.stack(raw), d, path)
+        row[label] = flicker(torch.stack(frames), d, path)
+    return row
 
 
 def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list[dict]:
-    """Per-view rows; ``changes[(size, ws)]`` collects each enhanced - raw [3,H,W] and
+    """Per-view rows; ``changes[(size, variant)]`` collects each enhanced - raw [3,H,W] and
     ``flicker_rows`` each scene's flicker figures."""
     torch.manual_seed(0)
     model = ProSplat.from_pretrained()
+    improvers = _improvers(args.improve, model.improver)
     lpips = LPIPS()
     folders = [f for root in args.data for f in find_scenes(root)[: args.scenes]]
     rows = []
@@ -79,9 +84,9 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
             with torch.no_grad():
                 out = model.reconstruct_full(gen_images, gen_cams, near, far)
                 g = prune_pixel_aligned(out.gaussians(0), out.depths[0], gen_cams)[0]
-            if args.flicker_frames:
+            if args.flicker_frames and size == args.sizes[0]:
                 flicker_rows.append(
-                    _flicker_row(model, g, inp_images, inp_cams, cams, scene, size, args)
+                    _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args)
                 )
             for t in scene.target_indices:
                 cam, gt = cams[t], images[t]
@@ -97,17 +102,33 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
                         "psnr_raw": float(psnr(r.rgb, gt)),
                         "lpips_raw": float(lpips(r.rgb[None], gt[None])),
                     }
-                    for ws in args.working_sizes:
-                        e = enhance(
-                            model.improver, r.rgb, cam, inp_images[j], inp_cams[j], working_size=ws
-                        )
-                        row[f"psnr_ws{ws}"] = float(psnr(e, gt))
-                        row[f"lpips_ws{ws}"] = float(lpips(e[None], gt[None]))
-                        row[f"departure_ws{ws}"] = _departure(r.rgb, e, r.alpha)
-                        changes.setdefault((size, ws), []).append(e - r.rgb)
+                    for label, improver in improvers.items():
+                        for ws in args.working_sizes:
+                            e = enhance(
+                                improver, r.rgb, cam, inp_images[j], inp_cams[j],
+                                working_size=ws, alpha=r.alpha,
+                            )  # fmt: skip
+                            key = f"{label} ws{ws}"
+                            row[f"psnr {key}"] = float(psnr(e, gt))
+                            row[f"lpips {key}"] = float(lpips(e[None], gt[None]))
+                            row[f"departure {key}"] = _departure(r.rgb, e, r.alpha)
+                            changes.setdefault((size, key), []).append(e - r.rgb)
                 rows.append(row)
         print(f"[{n + 1}/{len(folders)}] {folder.name}", file=sys.stderr, flush=True)
     return rows
+
+
+def _improvers(specs: list[str], shipped) -> dict:
+    """``LABEL=PATH`` specs -> {label: improvement model}; none given: the shipped one."""
+    from prosplat.improve.io import load_improver
+
+    if not specs:
+        return {"shipped": shipped}
+    out = {}
+    for spec in specs:
+        label, _, path = spec.rpartition("=")
+        out[label or Path(path).stem] = load_improver(path)
+    return out
 
 
 def _mean(values) -> float:
@@ -115,38 +136,40 @@ def _mean(values) -> float:
     return sum(values) / len(values) if values else math.nan
 
 
-def summary(rows: list[dict], working_sizes: list[int]) -> str:
+def summary(rows: list[dict], variants: list[str]) -> str:
+    """Mean PSNR / LPIPS per size and variant ("LABEL wsN"), then the guard sweep on the
+    last variant."""
     lines = [
         "| size | views | raw PSNR / LPIPS | "
-        + " | ".join(f"ws {ws} PSNR / LPIPS" for ws in working_sizes)
+        + " | ".join(f"{v} PSNR / LPIPS" for v in variants)
         + " |",
-        "|---" * (3 + len(working_sizes)) + "|",
+        "|---" * (3 + len(variants)) + "|",
     ]
     for size in sorted({r["size"] for r in rows}):
         rs = [r for r in rows if r["size"] == size]
         cells = [
             f"{_mean(r['psnr_raw'] for r in rs):.2f} / {_mean(r['lpips_raw'] for r in rs):.3f}"
         ]
-        for ws in working_sizes:
-            p = _mean(r[f"psnr_ws{ws}"] for r in rs)
-            lp = _mean(r[f"lpips_ws{ws}"] for r in rs)
+        for v in variants:
+            p = _mean(r[f"psnr {v}"] for r in rs)
+            lp = _mean(r[f"lpips {v}"] for r in rs)
             cells.append(f"{p:.2f} / {lp:.3f}")
         lines.append(f"| {size} | {len(rs)} | " + " | ".join(cells) + " |")
-    ws = working_sizes[-1]
+    v = variants[-1]
     lines += [
         "",
-        f"Guard sweep (working size {ws}): mean PSNR over all sizes, views kept raw",
+        f"Guard sweep ({v}): mean PSNR over all sizes, views kept raw",
         "",
         "| min coverage | max departure | PSNR | raw kept |",
         "|---|---|---|---|",
     ]
-    for c, d in itertools.product((0.0, 0.05, 0.1, 0.2, 0.3), (0.05, 0.1, 0.15, 0.2, 1.0)):
+    for c, d in itertools.product((0.0, 0.05, 0.1, 0.2), (0.1, 0.15, 0.2, 0.25, 1.0)):
         opts = EnhanceOptions(min_coverage=c, max_departure=d)
         vals, kept = [], 0
         for r in rows:
-            bad = r["coverage"] < opts.min_coverage or r[f"departure_ws{ws}"] > opts.max_departure
+            bad = r["coverage"] < opts.min_coverage or r[f"departure {v}"] > opts.max_departure
             kept += bad
-            vals.append(r["psnr_raw"] if bad else r[f"psnr_ws{ws}"])
+            vals.append(r["psnr_raw"] if bad else r[f"psnr {v}"])
         lines.append(f"| {c} | {d} | {_mean(vals):.3f} | {kept}/{len(rows)} |")
     return "\n".join(lines)
 
@@ -169,6 +192,12 @@ def main(argv: list[str] | None = None) -> int:
         default=0,
         help="also measure flicker along an N-frame path per scene (e.g. 24)",
     )
+    p.add_argument(
+        "--improve",
+        action="append",
+        default=[],
+        help="LABEL=PATH improvement model to compare (repeatable; default: the shipped one)",
+    )
     p.add_argument("--scenes", type=int, default=None, help="at most N scenes per root")
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
@@ -181,37 +210,40 @@ def main(argv: list[str] | None = None) -> int:
         "",
         "Fixed pattern (prosplat.improve.pattern; ~1 = none)",
         "",
-        "| size | working size | views | ratio |",
+        "| size | model, working size | views | ratio |",
         "|---|---|---|---|",
     ]
-    for (size, ws), items in sorted(changes.items()):
+    for (size, key), items in sorted(changes.items()):
         shapes = {tuple(c.shape) for c in items}
         if len(shapes) != 1:
             continue  # views of different shapes cannot be averaged pixel by pixel
         stack = torch.stack(items)
         score = fixed_pattern_score(stack)
-        pattern.append(f"| {size} | {ws} | {score.views} | {score.ratio:.2f} |")
+        pattern.append(f"| {size} | {key} | {score.views} | {score.ratio:.2f} |")
         mean = stack.mean(0)
         amplified = (0.5 + 0.5 * mean / mean.abs().max().clamp_min(1e-6)).clamp(0, 1)
-        write_image(args.out / f"mean_change_{size}_ws{ws}.png", amplified, overwrite=True)
+        name = key.replace(" ", "_")
+        write_image(args.out / f"mean_change_{size}_{name}.png", amplified, overwrite=True)
     with open(args.out / "views.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    text = summary(rows, args.working_sizes) + "\n".join(pattern)
+    variants = sorted({k[len("psnr ") :] for k in rows[0] if k.startswith("psnr ")})
+    text = summary(rows, variants) + "\n".join(pattern)
     if flicker_rows:
         text += "\n\nFlicker along a path between two targets (prosplat.flicker)\n\n"
-        text += (
-            "| size | scenes | raw | enhanced | ratio (median of scenes) |\n|---|---|---|---|---|\n"
-        )
+        text += "| size | model | scenes | raw | enhanced | ratio (median of scenes) |\n"
+        text += "|---|---|---|---|---|---|\n"
+        labels = [k for k in flicker_rows[0] if k not in ("scene", "size", "raw")]
         for size in sorted({r["size"] for r in flicker_rows}):
             fr = [r for r in flicker_rows if r["size"] == size and r["raw"] == r["raw"]]
-            ratios = sorted(r["enhanced"] / r["raw"] for r in fr if r["raw"] > 0)
-            med = ratios[len(ratios) // 2] if ratios else math.nan
-            text += (
-                f"| {size} | {len(fr)} | {_mean(r['raw'] for r in fr):.4f} | "
-                f"{_mean(r['enhanced'] for r in fr):.4f} | {med:.2f} |\n"
-            )
+            for label in labels:
+                ratios = sorted(r[label] / r["raw"] for r in fr if r["raw"] > 0)
+                med = ratios[len(ratios) // 2] if ratios else math.nan
+                text += (
+                    f"| {size} | {label} | {len(fr)} | {_mean(r['raw'] for r in fr):.4f} | "
+                    f"{_mean(r[label] for r in fr):.4f} | {med:.2f} |\n"
+                )
     (args.out / "summary.md").write_text(text + "\n")
     print(text)
     return 0
