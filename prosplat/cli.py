@@ -30,6 +30,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
         bf16=args.bf16,
         refine_steps=args.refine_steps,
         refine_seconds=args.refine_seconds,
+        weights=args.weights,
+        generator=args.generator,
+        improve=args.improve,
         overwrite=args.overwrite,
     )
     try:
@@ -352,6 +355,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="Gaussians to keep: a count or a fraction (default: automatic)",
     )
     demo.add_argument("--bf16", action="store_true", help="run stage 2 under bfloat16 autocast")
+    demo.add_argument("--weights", default=None, help="generator checkpoint (default: shipped)")
+    demo.add_argument(
+        "--generator", default=None, help="a DepthSplat checkpoint (.pth) as stage 1 instead"
+    )
+    demo.add_argument("--improve", default=None, help="stage-2 checkpoint (default: shipped)")
     add_refine_arguments(demo)
     demo.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
     demo.set_defaults(func=cmd_demo)

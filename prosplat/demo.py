@@ -67,11 +67,18 @@ class DemoConfig:
     bf16: bool = False  # stage 2 under bfloat16 autocast
     refine_steps: int = 0  # refine the budget's Gaussians against the inputs (0: off)
     refine_seconds: float | None = None  # ... or for this many seconds
+    weights: str | None = None  # generator checkpoint (None: the shipped one)
+    generator: str | None = None  # a DepthSplat checkpoint (.pth) as stage 1 instead
+    improve: str | None = None  # stage-2 checkpoint (None: the shipped one)
     overwrite: bool = False
 
     def check(self) -> None:
         if self.size < 32 or self.size % 32:
             raise ValueError(f"--size must be a positive multiple of 32, got {self.size}")
+        if self.generator and self.weights:
+            raise ValueError(
+                "pass either --weights (a prosplat generator) or --generator (DepthSplat)"
+            )
         if self.render_scale < 1:
             raise ValueError(f"--render-scale must be >= 1, got {self.render_scale}")
         if not 2 <= self.inputs <= 6:
@@ -238,8 +245,15 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     in_images, in_cams = images[inp], [cameras[i] for i in inp]
     near, far = float(scene.near[inp].min()), float(scene.far[inp].max())
 
-    print("loading the shipped generator and improvement model")
-    model = ProSplat.from_pretrained(improve=True)
+    print(
+        f"loading the generator ({cfg.generator or cfg.weights or 'shipped'}) and the "
+        f"improvement model ({cfg.improve or 'shipped'})"
+    )
+    improve = cfg.improve or True
+    if cfg.generator:
+        model = ProSplat.from_pretrained(generator=cfg.generator, improve=improve)
+    else:
+        model = ProSplat.from_pretrained(cfg.weights, improve=improve)
     t0 = time.perf_counter()
     recon = model.reconstruct_full(in_images, in_cams, near, far)
     t_recon = time.perf_counter() - t0

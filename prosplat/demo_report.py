@@ -181,7 +181,13 @@ def plot(result: DemoResult, path: Path) -> None:
         ax2.plot(ms, [s["psnr_raw"], s["psnr_enhanced"]], marker=marker, label=s["kind"])
         for m, p, lab in zip(ms, [s["psnr_raw"], s["psnr_enhanced"]], ("gen", "enh")):
             ax2.annotate(lab, (m, p), fontsize=7, xytext=(3, 3), textcoords="offset points")
-    ax2.axvline(1e3 * result.blender_view_s, color="grey", ls="--", label="Cycles, per exact view")
+    rs, ms_size = result.settings.get("render_size"), result.settings.get("size")
+    ax2.axvline(
+        1e3 * result.blender_view_s,
+        color="grey",
+        ls="--",
+        label=f"Cycles, one exact view at {rs}² (the model's views: {ms_size}²)",
+    )
     ax2.set_xscale("log")
     ax2.set_xlabel("ms per view (reconstruction amortised)")
     ax2.set_ylabel("mean PSNR (dB)")

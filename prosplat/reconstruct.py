@@ -89,6 +89,11 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--near", type=float, default=None, help="near depth (default: estimated)")
     p.add_argument("--far", type=float, default=None, help="far depth (default: estimated)")
     p.add_argument("--weights", default=None, help="generator checkpoint (default: shipped)")
+    p.add_argument(
+        "--generator",
+        default=None,
+        help="a DepthSplat checkpoint (.pth, downloaded by you) as stage 1 instead of --weights",
+    )
     p.add_argument("--improve", default=None, help="stage-2 checkpoint (default: shipped)")
     p.add_argument(
         "--budget",
@@ -273,7 +278,13 @@ def prepare(args: argparse.Namespace, keep_targets: int = 0):
 def load_model(args: argparse.Namespace):
     from prosplat.pipeline import ProSplat
 
-    return ProSplat.from_pretrained(args.weights, improve=args.improve if args.improve else True)
+    improve = args.improve if args.improve else True
+    generator = getattr(args, "generator", None)
+    if generator and args.weights:
+        raise ValueError("pass either --weights (a prosplat generator) or --generator (DepthSplat)")
+    if generator:
+        return ProSplat.from_pretrained(generator=generator, improve=improve)
+    return ProSplat.from_pretrained(args.weights, improve=improve)
 
 
 def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:

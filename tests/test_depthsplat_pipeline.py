@@ -132,3 +132,30 @@ def test_eval_cli_adds_a_depthsplat_row(released_file, tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-2000:]
     assert "DepthSplat (user weights)" in res.stdout
+
+
+def test_reconstruct_and_demo_take_a_depthsplat_checkpoint(released_file, tmp_path):
+    """`prosplat reconstruct --generator FILE.pth` runs DepthSplat as stage 1; --weights with it
+    is refused in one line."""
+    from posed_data import scene_cameras, write_colmap_project
+
+    from prosplat.cli import build_parser
+    from prosplat.demo import DemoConfig
+    from prosplat.ply import read_ply
+
+    def cli(argv: list[str]) -> int:
+        args = build_parser().parse_args(argv)
+        return args.func(args)
+
+    colmap = write_colmap_project(tmp_path / "proj", scene_cameras(2))
+    out = tmp_path / "out"
+    code = cli(["reconstruct", str(colmap), "--out", str(out), "--size", "32",
+                "--generator", str(released_file), "--render", "none"])  # fmt: skip
+    assert code == 0
+    g = read_ply(out / "gaussians.ply")
+    assert len(g) > 100 and torch.isfinite(g.means).all()
+    code = cli(["reconstruct", str(colmap), "--out", str(tmp_path / "o2"), "--weights", "x",
+                "--generator", str(released_file)])  # fmt: skip
+    assert code == 2
+    with pytest.raises(ValueError, match="either --weights"):
+        DemoConfig(weights="a.safetensors", generator=str(released_file)).check()
