@@ -88,7 +88,9 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
                 flicker_rows.append(
                     _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args)
                 )
-            for t in scene.target_indices:
+            views = [(t, "target") for t in scene.target_indices]
+            views += [(i, "input") for i in idx] if args.inputs_too else []
+            for t, kind in views:
                 cam, gt = cams[t], images[t]
                 with torch.no_grad():
                     r = render(g, cam)
@@ -98,6 +100,7 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
                         "family": str(scene.meta.get("name") or scene.meta.get("family", "?")),
                         "size": size,
                         "target": t,
+                        "kind": kind,
                         "coverage": float(r.alpha.mean()),
                         "psnr_raw": float(psnr(r.rgb, gt)),
                         "lpips_raw": float(lpips(r.rgb[None], gt[None])),
@@ -112,7 +115,8 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
                             row[f"psnr {key}"] = float(psnr(e, gt))
                             row[f"lpips {key}"] = float(lpips(e[None], gt[None]))
                             row[f"departure {key}"] = _departure(r.rgb, e, r.alpha)
-                            changes.setdefault((size, key), []).append(e - r.rgb)
+                            if kind == "target":
+                                changes.setdefault((size, key), []).append(e - r.rgb)
                 rows.append(row)
         print(f"[{n + 1}/{len(folders)}] {folder.name}", file=sys.stderr, flush=True)
     return rows
@@ -198,6 +202,11 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         help="LABEL=PATH improvement model to compare (repeatable; default: the shipped one)",
     )
+    p.add_argument(
+        "--inputs-too",
+        action="store_true",
+        help="also score re-rendered input cameras (reported apart from the targets)",
+    )
     p.add_argument("--scenes", type=int, default=None, help="at most N scenes per root")
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
@@ -229,7 +238,12 @@ def main(argv: list[str] | None = None) -> int:
         w.writeheader()
         w.writerows(rows)
     variants = sorted({k[len("psnr ") :] for k in rows[0] if k.startswith("psnr ")})
-    text = summary(rows, variants) + "\n".join(pattern)
+    targets = [r for r in rows if r["kind"] == "target"]
+    text = summary(targets, variants) + "\n".join(pattern)
+    inputs = [r for r in rows if r["kind"] == "input"]
+    if inputs:
+        text += "\n\nRe-rendered input cameras (PSNR / LPIPS)\n\n" + summary(inputs, variants)
+        text = text[: text.rindex("\n\nGuard sweep")]  # the sweep is for targets
     if flicker_rows:
         text += "\n\nFlicker along a path between two targets (prosplat.flicker)\n\n"
         text += "| size | model | scenes | raw | enhanced | ratio (median of scenes) |\n"
