@@ -23,9 +23,9 @@ from prosplat.convert.pointcloud import from_attributes, to_attributes, transfor
 from prosplat.convert.posed import camera_from_dict, camera_to_blender_dict, read_posed_images
 from prosplat.gaussians import Gaussians
 from prosplat.worker import Progress
+from prosplat.worker.models import MODELS
 
 SIZE_MULTIPLE = 32  # the generator's image sizes are multiples of this
-_MODEL_CACHE: dict[tuple, Any] = {}
 
 
 def pick_device(name: str | None) -> torch.device:
@@ -49,19 +49,13 @@ def pick_device(name: str | None) -> torch.device:
 
 
 def load_model(weights: str | None, device: torch.device, improve: str | bool | None = False):
-    """``ProSplat.from_pretrained`` once per (weights, improve, device) in this process.
+    """The model for a job, from this process's :data:`~prosplat.worker.models.MODELS` cache
+    (loaded on first use, then kept for the next jobs; see :mod:`prosplat.worker.models`).
 
     ``improve``: the stage-2 checkpoint path, None for the shipped one (if any), False for
     none (reconstruction never needs stage 2, so it does not pay for loading it).
     """
-    from prosplat.pipeline import ProSplat
-
-    key = (str(weights or ""), str(improve), str(device))
-    if key not in _MODEL_CACHE:
-        _MODEL_CACHE.clear()  # one model at a time: they can be large
-        _MODEL_CACHE[key] = ProSplat.from_pretrained(weights or None, device=device,
-                                                     improve=improve)  # fmt: skip
-    return _MODEL_CACHE[key]
+    return MODELS.get(weights, device, improve)
 
 
 def load_frames(frames: list, progress: Progress, lo: float, hi: float):
