@@ -88,8 +88,13 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {"cpu_count": os.cpu_count(), "physical_cores": cores, "repeats": args.repeats,
             "time": time.strftime("%Y-%m-%d %H:%M"), "loadavg": os.getloadavg()}  # fmt: skip
-    (args.out / "worker_threads.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
-    lines = ["| load | OMP_WAIT_POLICY | threads | median s | min s | max s |", "|---|---|---|---|---|---|"]
+    (args.out / "worker_threads.json").write_text(
+        json.dumps({"meta": meta, "rows": rows}, indent=1)
+    )
+    lines = [
+        "| load | OMP_WAIT_POLICY | threads | median s | min s | max s |",
+        "|---|---|---|---|---|---|",
+    ]
     lines += [f"| {r['load']} | {r['omp_wait_policy']} | {r['threads']} | {r['median_s']:.3f} "
               f"| {r['min_s']:.3f} | {r['max_s']:.3f} |" for r in rows]  # fmt: skip
     (args.out / "worker_threads.md").write_text("\n".join(lines) + "\n")

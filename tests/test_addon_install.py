@@ -107,7 +107,10 @@ def test_pip_runs_in_order_with_progress_and_stops_at_a_failure() -> None:
                              _fake_pip(["Collecting a==1", "Collecting b==2",
                                         "Successfully installed a-1 b-2"])], [0.8, 0.2]).start()  # fmt: skip
     ok.wait()
-    assert ok.summary() == (True, f"installed 3 packages (the tested set, torch {pins.TORCH_VERSION})")
+    assert ok.summary() == (
+        True,
+        f"installed 3 packages (the tested set, torch {pins.TORCH_VERSION})",
+    )
     assert ok.fraction == 1.0
     bad = install.PipInstall([_fake_pip(["ERROR: no matching distribution for torch"], 1),
                               _fake_pip(["Successfully installed x-1"])]).start()  # fmt: skip

@@ -145,7 +145,32 @@ def test_shutdown_stops_the_worker(tmp_path: Path) -> None:
 
 
 def _tiny_arrays() -> dict:
-    from prosplat.convert.pointcloud import to_attributes
     from test_worker import random_gaussians
 
+    from prosplat.convert.pointcloud import to_attributes
+
     return to_attributes(random_gaussians(4, 0))
+
+
+def test_a_camera_path_shows_as_one_image_sequence(tmp_path: Path) -> None:
+    import bpy
+
+    from addon import steps
+
+    for f in (1, 2, 3):  # three frames as the render task writes them
+        img = bpy.data.images.new(f"f{f}", 4, 4)
+        img.filepath_raw, img.file_format = str(tmp_path / f"Cam_{f:04d}.png"), "PNG"
+        img.save()
+        bpy.data.images.remove(img)
+    views = [{"name": f"Cam_{f:04d}", "image": str(tmp_path / f"Cam_{f:04d}.png"), "frame": f}
+             for f in (1, 2, 3)]  # fmt: skip
+    result = {"views": views, "output_dir": str(tmp_path), "sequence": {"prefix": "Cam",
+              "frames": [1, 2, 3], "pattern": "Cam_####.png", "first": views[0]["image"]}}  # fmt: skip
+    before = len(bpy.data.images)
+    (img,) = steps.apply_render(result)
+    assert img.source == "SEQUENCE" and img.name == "ProSplat Cam"
+    assert len(bpy.data.images) == before + 1  # one Image, not one per frame
+    steps.apply_render(result)  # again: replaced, not duplicated
+    assert len(bpy.data.images) == before + 1
+    line = steps.describe_render(result)
+    assert "3 frame(s)" in line and "Cam_####.png" in line

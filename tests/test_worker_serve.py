@@ -179,3 +179,48 @@ def test_serve_honours_a_cancel_file(server, tmp_path: Path) -> None:
     reply = server.send(json.dumps({"id": 1, "job": str(job)}))
     assert reply["code"] == 3
     assert json.loads(paths_for(job)["status"].read_text())["state"] == "cancelled"
+
+
+# ---- a camera path: an image sequence ----------------------------------------------------
+def _path_targets(scene: dict, frames: list[int]) -> list[dict]:
+    cam = scene["targets"][0]["camera"]
+    return [{"name": f"Cam_{f:04d}", "camera": cam, "sequence": "Cam", "frame": f} for f in frames]
+
+
+def test_camera_path_renders_a_frame_numbered_sequence(scene, tmp_path: Path) -> None:
+    seen: list[str] = []
+    params = {**_render(scene), "targets": _path_targets(scene, [3, 4, 5]),
+              "output_dir": str(tmp_path), "save_depth": True}  # fmt: skip
+    from prosplat.worker import Progress
+
+    res = run_task("render", params, Progress(lambda f, m: seen.append(m)))
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == [
+        "Cam_0003.png",
+        "Cam_0004.png",
+        "Cam_0005.png",
+    ]
+    assert res["sequence"] == {"prefix": "Cam", "frames": [3, 4, 5], "pattern": "Cam_####.png",
+                               "first": str(tmp_path / "Cam_0003.png")}  # fmt: skip
+    assert [m for m in seen if m.startswith("rendering")] == [
+        "rendering frame 3 (1/3)",
+        "rendering frame 4 (2/3)",
+        "rendering frame 5 (3/3)",
+    ]
+    again = run_task("render", params)  # never replaces a frame, never mixes sequences
+    assert again["sequence"]["prefix"] == "Cam-2"
+    assert (tmp_path / "Cam-2_0005.png").is_file() and (tmp_path / "Cam-2_0005_depth.exr").is_file()
+
+
+def test_cancelled_camera_path_leaves_no_frames(scene, tmp_path: Path) -> None:
+    from prosplat.worker import Cancelled, Progress
+
+    def esc_at_frame_3(fraction: float, message: str) -> None:
+        if message.startswith("rendering frame 3"):
+            progress.cancel.set()
+
+    progress = Progress(esc_at_frame_3)
+    params = {**_render(scene), "targets": _path_targets(scene, [1, 2, 3, 4]),
+              "output_dir": str(tmp_path)}  # fmt: skip
+    with pytest.raises(Cancelled):
+        run_task("render", params, progress)
+    assert list(tmp_path.glob("*.png")) == []  # frames 1-2 were written, then removed

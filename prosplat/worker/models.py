@@ -77,7 +77,9 @@ class ModelCache:
                 self._generator = (gen_key, base)
                 self.loads["generator"] += 1
                 hit = False
-            if imp_path != _NO_IMPROVER and (self._improver is None or self._improver[0] != imp_key):
+            if imp_path != _NO_IMPROVER and (
+                self._improver is None or self._improver[0] != imp_key
+            ):
                 self._improver = None
                 self._improver = (imp_key, load_improver(imp_path, device=device))
                 self.loads["improver"] += 1
