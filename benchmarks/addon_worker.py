@@ -13,7 +13,10 @@ spinning processes beside it (the issue's "busy CPU").
 
     python benchmarks/addon_worker.py [--runs 3] [--calls 6] [--busy 1] [--out out/bench]
 
-Prints a Markdown table and writes ``addon_worker.json`` / ``.md`` to --out.
+``--code DIR --label NAME`` runs another checkout's ``addon``/``prosplat`` instead (e.g. the
+commit before the warm worker, from ``git archive COMMIT addon prosplat tests``): its rows
+are the "before". Prints a Markdown table and writes ``addon_worker_busyN[_NAME].json`` /
+``.md`` to --out.
 """
 
 from __future__ import annotations
@@ -36,17 +39,18 @@ MODES = {
 }
 
 
-def child(mode: str, scene: Path, calls: int, threads: int) -> list[float]:
+def child(mode: str, scene: Path, calls: int, threads: int, code: Path) -> list[float]:
     """One Blender session: build the scene, time ``calls`` Render View calls."""
     import bpy
     import numpy as np
 
-    sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+    sys.path[:0] = [str(code), str(code / "tests")]
     from addon_support import reset_scene
 
     from addon import cameras, pointcloud, runtime, steps
 
-    prefs = runtime.Defaults(threads=threads)
+    prefs = runtime.Defaults()
+    prefs.threads = threads  # attributes an older add-on does not know are simply unused
     if mode != "thread":
         prefs.python_path, prefs.keep_worker = sys.executable, mode == "external"
     runtime.prefs = lambda context=None: prefs
@@ -71,9 +75,8 @@ def child(mode: str, scene: Path, calls: int, threads: int) -> list[float]:
         res = bpy.ops.prosplat.render_view("EXEC_DEFAULT")
         times.append(time.perf_counter() - t)
         assert res == {"FINISHED"}, res
-    from addon import worker_process
-
-    worker_process.shutdown()
+    if hasattr(jobs := sys.modules["addon.jobs"], "shutdown_workers"):
+        jobs.shutdown_workers()
     return times
 
 
@@ -103,15 +106,20 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=0, help="the CPU Threads preference")
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "bench")
+    ap.add_argument("--code", type=Path, default=ROOT, help="checkout whose add-on runs")
+    ap.add_argument("--label", default="", help="names the rows and files of --code")
     ap.add_argument("--child", nargs=2, metavar=("MODE", "SCENE"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        print(json.dumps(child(args.child[0], Path(args.child[1]), args.calls, args.threads)))
+        times = child(args.child[0], Path(args.child[1]), args.calls, args.threads, args.code)
+        print(json.dumps(times))
         return
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from bench_scene import ensure_scene
 
     scene = ensure_scene(args.out / "scene128")
+    code = args.code.resolve()
+    tag = f" ({args.label})" if args.label else ""
     spin = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
     rows = []
     try:
@@ -120,15 +128,15 @@ def main() -> None:
             for _ in range(args.runs):
                 out = subprocess.run(
                     [sys.executable, __file__, "--child", mode, str(scene), "--calls",
-                     str(args.calls), "--threads", str(args.threads)],
-                    capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                     str(args.calls), "--threads", str(args.threads), "--code", str(code)],
+                    capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(code)},
                 )  # fmt: skip
                 if out.returncode != 0:
                     raise SystemExit(f"{mode} failed:\n{out.stderr[-3000:]}")
                 times = json.loads(out.stdout.strip().splitlines()[-1])
                 colds.append(times[0])
                 warms += times[1:]
-            rows.append({"mode": mode, "what": MODES[mode], "cold_s": statistics.median(colds),
+            rows.append({"mode": mode, "what": MODES[mode] + tag, "cold_s": statistics.median(colds),
                          "warm_s": statistics.median(warms), "warm_max_s": max(warms),
                          "colds": colds, "warms": warms})  # fmt: skip
             r = rows[-1]
@@ -139,7 +147,7 @@ def main() -> None:
             p.wait()
     meta = {"cpu": _cpu_name(), "cpu_count": os.cpu_count(), "busy": args.busy,
             "threads_pref": args.threads, "runs": args.runs, "calls": args.calls,
-            "commit": _commit(), "time": time.strftime("%Y-%m-%d %H:%M"),
+            "commit": args.label or _commit(), "time": time.strftime("%Y-%m-%d %H:%M"),
             "size": "128x128 target, 2 inputs of 128x128, enhanced (improve_tiny)"}  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     lines = [f"Render View, 128 px, {meta['cpu_count']} CPUs ({meta['cpu']}), busy={args.busy}, "
@@ -148,7 +156,7 @@ def main() -> None:
              "|---|---|---|---|"]  # fmt: skip
     lines += [f"| {r['what']} | {r['cold_s']:.2f} | {r['warm_s']:.2f} | {r['warm_max_s']:.2f} |"
               for r in rows]  # fmt: skip
-    stem = f"addon_worker_busy{args.busy}"
+    stem = f"addon_worker_busy{args.busy}" + (f"_{args.label}" if args.label else "")
     (args.out / f"{stem}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     (args.out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
