@@ -234,8 +234,13 @@ class ExternalJob(Job):
             self._finish(0, status)
             return True
         if self.worker.alive():
-            if self._cancel_time and time.monotonic() - self._cancel_time > _TERMINATE_AFTER:
-                self.worker.kill()  # a step that would not stop; the next job starts a new one
+            if self._cancel_time is None:
+                return False
+            if status is None:  # still queued behind another job: done here; the worker
+                self._finish(None, None)  # finds its folder gone and skips it
+                return True
+            if time.monotonic() - self._cancel_time > _TERMINATE_AFTER:
+                self.worker.kill()  # our step would not stop; the next job starts a new one
             return False
         status = self._status()  # it may have finished just before it went away
         if status and status.get("state") in FINISHED:

@@ -68,7 +68,8 @@ class PROSPLAT_OT_install_requirements(bpy.types.Operator):
     def execute(self, context):
         if not self.confirmed and context.window is not None and not bpy.app.background:
             # OK in the confirmation dialog: run modally, with progress, rather than block
-            return bpy.ops.prosplat.install_requirements("INVOKE_DEFAULT", confirmed=True)
+            bpy.ops.prosplat.install_requirements("INVOKE_DEFAULT", confirmed=True)
+            return {"FINISHED"}
         run = self._start(context)  # background/scripts: wait for pip
         run.wait()
         return self._report(context, run)

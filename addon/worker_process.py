@@ -17,6 +17,7 @@ import atexit
 import itertools
 import json
 import os
+import shutil
 import subprocess
 import tempfile
 import threading
@@ -117,17 +118,12 @@ class WorkerProcess:
         """Ask it to finish (end of input), kill it if it does not within a few seconds."""
         if self.proc is None:
             return
-        if self.alive():
-            try:
-                self.proc.stdin.close()
-                self.proc.wait(_STOP_WAIT)
-            except (OSError, subprocess.TimeoutExpired):
-                self.kill()
-        else:
-            try:
-                self.proc.stdin.close()
-            except OSError:
-                pass
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(_STOP_WAIT)
+        except (OSError, subprocess.TimeoutExpired):
+            self.kill()
+        shutil.rmtree(self.dir, ignore_errors=True)
 
 
 _WORKERS: dict[str, WorkerProcess] = {}

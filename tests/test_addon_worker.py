@@ -108,6 +108,21 @@ def test_esc_cancels_a_served_job_and_the_worker_stays_warm(scene, tmp_path: Pat
     assert after["worker"]["pid"] == pid and after["worker"]["model_loads"]["generator"] == 1
 
 
+def test_cancelling_a_queued_job_leaves_the_running_one_alone(scene, tmp_path: Path) -> None:
+    rec = _ext("reconstruct", _reconstruct(scene)).wait(timeout=300)
+    running = _ext("render", _render(scene, rec["arrays"], tmp_path / "a", n=60))
+    queued = _ext("export_ply", {"path": str(tmp_path / "g.ply"), "arrays": _tiny_arrays()})
+    while running.progress < 0.25:
+        running.poll()
+        time.sleep(0.05)
+    queued.cancel()
+    with pytest.raises(jobs.JobCancelled):
+        queued.wait(timeout=5)  # at once: it never started, and nothing was killed for it
+    result = running.wait(timeout=300)
+    assert len(result["views"]) == 60 and result["worker"]["pid"] == queued.worker.pid
+    assert not (tmp_path / "g.ply").exists()
+
+
 def test_errors_are_one_line_and_the_worker_goes_on(tmp_path: Path) -> None:
     with pytest.raises(jobs.JobError) as e:
         _ext("import_ply", {"path": str(tmp_path / "none.ply")}).wait(timeout=300)
