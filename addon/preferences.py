@@ -15,7 +15,7 @@ DEVICES = [
     ("MPS", "MPS", "Run on Apple silicon"),
 ]
 TORCH_BUILDS = [
-    ("CPU", "CPU", "torch's CPU build from the PyTorch CPU index (about 0.3 GB; any machine)"),
+    ("CPU", "CPU", "torch's CPU build from the PyTorch CPU index (about 230 MB; any machine)"),
     ("CUDA", "CUDA", "torch's CUDA build and NVIDIA libraries (about 3 GB; NVIDIA GPUs)"),
 ]
 _STATUS: dict[str, object] = {}

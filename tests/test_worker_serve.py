@@ -74,6 +74,22 @@ def test_cache_reloads_for_other_weights_and_keeps_models_apart(fresh_cache) -> 
     assert fresh_cache.loads["generator"] == 1  # the failed load counted nothing
 
 
+def test_a_checkpoint_rewritten_in_place_is_reloaded(fresh_cache, tmp_path: Path) -> None:
+    import shutil
+
+    from prosplat.pipeline import DEFAULT_WEIGHTS
+
+    ckpt = tmp_path / "gen.safetensors"
+    shutil.copy(DEFAULT_WEIGHTS, ckpt)
+    cpu = torch.device("cpu")
+    fresh_cache.get(str(ckpt), cpu, False)
+    fresh_cache.get(str(ckpt), cpu, False)
+    assert fresh_cache.loads["generator"] == 1
+    os.utime(ckpt, ns=(ckpt.stat().st_atime_ns, ckpt.stat().st_mtime_ns + 10**9))  # retrained
+    fresh_cache.get(str(ckpt), cpu, False)
+    assert fresh_cache.loads["generator"] == 2
+
+
 @pytest.mark.parametrize(
     ("cores", "passive", "expected"),
     [(2, True, 2), (2, False, 1), (1, False, 1), (16, True, 4), (16, False, 4), (6, False, 3)],

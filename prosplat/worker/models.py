@@ -3,7 +3,8 @@
 A warm worker (the add-on's thread in Blender, or one long-lived ``python -m prosplat.worker
 --serve``) runs many jobs. Loading the generator and the improvement model costs seconds,
 rasterizing and enhancing one 128-px view a fraction of one, so the models stay loaded:
-the generator keyed by (weights path, device), the improvement model by (its path, device),
+the generator keyed by (weights file, device), the improvement model by (its file, device)
+(a file is its path, size and modification time, so retraining into it reloads it),
 held apart so that Reconstruct (generator only) and Render View (both) do not evict each
 other. One of each is kept: a different path or device replaces it (models can be large).
 
@@ -21,6 +22,16 @@ from typing import Any
 import torch
 
 _NO_IMPROVER = "none"
+
+
+def _file_key(path: str) -> tuple:
+    """A path with its size and modification time: a checkpoint retrained into the same
+    file is a different model, and must not be served from the cache."""
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return (path, None, None)
+    return (path, st.st_size, st.st_mtime_ns)
 
 
 class ModelCache:
@@ -66,9 +77,9 @@ class ModelCache:
         from prosplat.improve.io import load_improver
         from prosplat.pipeline import ProSplat
 
-        gen_key = (str(weights or ""), str(device))
+        gen_key = (_file_key(str(weights)) if weights else "", str(device))
         imp_path = self._improver_path(improve)
-        imp_key = (imp_path, str(device))
+        imp_key = (_file_key(imp_path), str(device))
         with self._lock:
             hit = True
             if self._generator is None or self._generator[0] != gen_key:
