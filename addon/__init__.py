@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import operators, preferences, properties, runtime, ui
+from . import jobs, operators, preferences, properties, runtime, ui
 
 bl_info = {  # read only by Blender's legacy add-on loader; extensions use the manifest
     "name": "ProSplat",
@@ -34,6 +34,7 @@ def register() -> None:
 
 
 def unregister() -> None:
+    jobs.shutdown_workers()  # the session's external worker (atexit covers Blender's exit)
     bpy.types.TOPBAR_MT_file_export.remove(ui.menu_export)
     bpy.types.TOPBAR_MT_file_import.remove(ui.menu_import)
     properties.unregister_props()

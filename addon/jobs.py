@@ -4,6 +4,11 @@ Both kinds of :class:`Job` are polled from Blender's main thread (a modal operat
 :meth:`Job.wait` in scripts), and neither touches ``bpy``: the task gets plain data in and
 gives plain data back, and only the main thread turns that into Blender objects. So a
 cancelled or failed job never leaves a half-made object behind.
+
+Both stay warm between jobs: the thread runs in Blender's process, where the loaded models
+stay cached (:mod:`prosplat.worker.models`), and external jobs go to the session's one
+long-lived worker process (:mod:`.worker_process`) unless *Keep Worker Running* is off.
+Every job carries the torch CPU thread count of the preferences (``threads``, 0: automatic).
 """
 
 from __future__ import annotations
@@ -20,14 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from . import runtime
+from . import runtime, worker_process
 
 FINISHED = ("done", "error", "cancelled")
-# `python -c _BOOT ROOT JOB`: `python -m prosplat.worker JOB` with ROOT appended to sys.path.
-_BOOT = (
-    "import sys; root = sys.argv[1]; root and sys.path.append(root); "
-    "from prosplat.worker import main; sys.exit(main(sys.argv[2:]))"
-)
+_BOOT = worker_process.BOOT
 _TERMINATE_AFTER = 5.0  # seconds a cancelled external worker gets to stop by itself
 
 
@@ -104,6 +105,7 @@ class ThreadJob(Job):
     """The task in a thread of Blender's own Python (``prosplat`` must import here)."""
 
     def start(self) -> ThreadJob:
+        runtime.prefer_passive_wait()
         from prosplat.worker import Progress
 
         self._progress = Progress()
@@ -139,12 +141,23 @@ class ThreadJob(Job):
 
 
 class ExternalJob(Job):
-    """The task in ``python -m prosplat.worker JOB.json`` run by another interpreter."""
+    """The task in another interpreter: the session's serving worker (``persistent``, the
+    default) or, with it off, its own ``python -m prosplat.worker JOB.json`` process.
 
-    def __init__(self, task: str, params: dict[str, Any], python: str) -> None:
+    Either way the job is a folder of files (job, status, cancel, result), so polling,
+    cancelling and errors work the same; a job whose serving worker died before starting it
+    is handed once to a new worker.
+    """
+
+    def __init__(
+        self, task: str, params: dict[str, Any], python: str, persistent: bool = True
+    ) -> None:
         super().__init__(task, params)
-        self.python = python
+        self.python, self.persistent = python, persistent
         self._cancel_time: float | None = None
+        self.worker: worker_process.WorkerProcess | None = None
+        self.proc: subprocess.Popen | None = None
+        self._resubmitted = False
 
     def start(self) -> ExternalJob:
         if not (os.path.isfile(self.python) and os.access(self.python, os.X_OK)):
@@ -161,19 +174,34 @@ class ExternalJob(Job):
         self.job_file = self.dir / "job.json"
         self.job_file.write_text(json.dumps({"task": self.task, "params": params}))
         self.files = job_paths(self.job_file)
-        self._log = open(self.dir / "worker.log", "wb")  # noqa: SIM115 - closed in _finish
         # The prosplat this add-on found (e.g. the wheel bundled with the extension) goes at the
         # END of the worker's sys.path: the external Python's own packages always win, and the
         # bundled copy only helps a Python that has torch but no prosplat.
-        root = runtime.prosplat_source_root() or ""
-        self.proc = subprocess.Popen(
-            [self.python, "-c", _BOOT, root, str(self.job_file)],
-            stdout=self._log,
-            stderr=subprocess.STDOUT,
-            cwd=str(self.dir),
-        )
+        self._root = runtime.prosplat_source_root() or ""
+        if self.persistent:
+            self._submit()
+        else:
+            self._log = open(self.dir / "worker.log", "wb")  # noqa: SIM115 - closed in _finish
+            self.proc = subprocess.Popen(
+                [self.python, "-c", _BOOT, self._root, str(self.job_file)],
+                stdout=self._log, stderr=subprocess.STDOUT, cwd=str(self.dir),
+                env=worker_process.worker_env(),
+            )  # fmt: skip
         self.state = "running"
         return self
+
+    def _submit(self) -> None:
+        """Queue the job on the session's worker (a new one if it died); a worker that dies
+        on the spot (no prosplat, a broken Python) is left for :meth:`poll` to report."""
+        for _ in range(2):
+            self.worker = worker_process.get_worker(self.python, self._root)
+            try:
+                self.worker.submit(self.job_file)
+                break
+            except OSError:  # died between the check and the write
+                continue
+        if not self.worker.ready():
+            self.message = "starting the worker (importing torch)"
 
     def _status(self) -> dict | None:
         try:
@@ -188,6 +216,10 @@ class ExternalJob(Job):
         if status:
             self.progress = float(status.get("progress", 0.0))
             self.message = str(status.get("message", ""))
+        elif self.worker is not None and self.worker.ready():
+            self.message = "waiting for the worker (another job is running)"
+        if self.persistent:
+            return self._poll_served(status)
         code = self.proc.poll()
         if code is None:
             if self._cancel_time and time.monotonic() - self._cancel_time > _TERMINATE_AFTER:
@@ -197,8 +229,33 @@ class ExternalJob(Job):
         self._finish(code, self._status())
         return True
 
-    def _finish(self, code: int, status: dict | None) -> None:
-        self._log.close()
+    def _poll_served(self, status: dict | None) -> bool:
+        if status and status.get("state") in FINISHED:
+            self._finish(0, status)
+            return True
+        if self.worker.alive():
+            if self._cancel_time is None:
+                return False
+            if status is None:  # still queued behind another job: done here; the worker
+                self._finish(None, None)  # finds its folder gone and skips it
+                return True
+            if time.monotonic() - self._cancel_time > _TERMINATE_AFTER:
+                self.worker.kill()  # our step would not stop; the next job starts a new one
+            return False
+        status = self._status()  # it may have finished just before it went away
+        if status and status.get("state") in FINISHED:
+            self._finish(0, status)
+            return True
+        if status is None and not self._resubmitted and self._cancel_time is None:
+            self._resubmitted = True  # died before starting this job (e.g. killed for another)
+            self._submit()
+            return False
+        self._finish(self.worker.exit_code(), status)
+        return True
+
+    def _finish(self, code: int | None, status: dict | None) -> None:
+        if self.proc is not None:
+            self._log.close()
         state = (status or {}).get("state")
         if state == "done":
             self.result = status.get("result") or {}
@@ -212,12 +269,15 @@ class ExternalJob(Job):
             self.error = (status or {}).get("error") or self._crash_message(code)
         shutil.rmtree(self.dir, ignore_errors=True)
 
-    def _crash_message(self, code: int) -> str:
-        try:
-            tail = (self.dir / "worker.log").read_text(errors="replace").strip().splitlines()[-6:]
-        except OSError:
-            tail = []
-        hint = " | ".join(tail) if tail else "no output"
+    def _crash_message(self, code: int | None) -> str:
+        if self.worker is not None:
+            hint = self.worker.log_tail()
+        else:
+            try:
+                log = (self.dir / "worker.log").read_text(errors="replace")
+                hint = " | ".join(log.strip().splitlines()[-6:]) or "no output"
+            except OSError:
+                hint = "no output"
         return (
             f"the external worker ({self.python}) exited with code {code} before finishing: "
             f"{hint}. Check that this Python has prosplat and its requirements installed."
@@ -233,9 +293,10 @@ class ExternalJob(Job):
 def make_job(task: str, params: dict[str, Any], context=None) -> Job:
     """The job for ``task`` where the preferences say: the external Python if one is set,
     else a thread here. Raises :class:`JobError` when neither can run ``prosplat``."""
+    params = {**params, "threads": runtime.thread_count(context)}
     python = runtime.external_python(context)
     if python:
-        return ExternalJob(task, params, python)
+        return ExternalJob(task, params, python, runtime.keep_worker(context))
     err = runtime.check_prosplat_import()
     if err is not None:
         raise JobError(
@@ -249,3 +310,8 @@ def make_job(task: str, params: dict[str, Any], context=None) -> Job:
 def run_sync(task: str, params: dict[str, Any], context=None, timeout: float | None = None) -> dict:
     """Start ``task`` and wait for it (scripts and ``execute``)."""
     return make_job(task, params, context).start().wait(timeout)
+
+
+def shutdown_workers() -> None:
+    """Stop the session's external worker (``unregister``; ``atexit`` does it at exit too)."""
+    worker_process.shutdown()

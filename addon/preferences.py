@@ -6,13 +6,17 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from . import install, runtime
+from . import install, runtime, worker_process
 
 DEVICES = [
     ("AUTO", "Auto", "CUDA if available, then Apple MPS, then the CPU"),
     ("CPU", "CPU", "Run on the CPU"),
     ("CUDA", "CUDA", "Run on an NVIDIA GPU"),
     ("MPS", "MPS", "Run on Apple silicon"),
+]
+TORCH_BUILDS = [
+    ("CPU", "CPU", "torch's CPU build from the PyTorch CPU index (about 230 MB; any machine)"),
+    ("CUDA", "CUDA", "torch's CUDA build and NVIDIA libraries (about 3 GB; NVIDIA GPUs)"),
 ]
 _STATUS: dict[str, object] = {}
 
@@ -37,14 +41,36 @@ class PROSPLAT_OT_check_requirements(bpy.types.Operator):
 
 
 class PROSPLAT_OT_install_requirements(bpy.types.Operator):
-    """Install torch and prosplat's other requirements into Blender's Python with pip
-    (downloads a few hundred MB to a few GB)"""
+    """Install torch and prosplat's other requirements (the tested versions) into a folder of
+    the add-on with Blender's pip; shows the download size and asks first"""
 
     bl_idname = "prosplat.install_requirements"
     bl_label = "Install Requirements"
 
-    def execute(self, context):  # background/scripts: wait for pip
-        run = install.start_install(getattr(runtime.prefs(context), "pip_args", ""))
+    confirmed: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"})
+
+    def _build(self, context) -> str:
+        return str(getattr(runtime.prefs(context), "torch_build", "CPU"))
+
+    def _start(self, context):
+        p = runtime.prefs(context)
+        return install.start_install(getattr(p, "pip_args", ""), self._build(context))
+
+    def draw(self, context):
+        col = self.layout.column()
+        col.label(text=install.describe_download(self._build(context)), icon="INFO")
+        col.label(text=f"into {runtime.deps_dir()}")
+        col.label(text=f"tested on {install.pins.TESTED_ON}; Blender's numpy is kept")
+        problem = install.numpy_problem()
+        if problem:
+            col.label(text=problem, icon="ERROR")
+
+    def execute(self, context):
+        if not self.confirmed and context.window is not None and not bpy.app.background:
+            # OK in the confirmation dialog: run modally, with progress, rather than block
+            bpy.ops.prosplat.install_requirements("INVOKE_DEFAULT", confirmed=True)
+            return {"FINISHED"}
+        run = self._start(context)  # background/scripts: wait for pip
         run.wait()
         return self._report(context, run)
 
@@ -52,7 +78,11 @@ class PROSPLAT_OT_install_requirements(bpy.types.Operator):
         if "run" in install.CURRENT and not install.CURRENT["run"].poll():
             self.report({"ERROR"}, "an install is already running")
             return {"CANCELLED"}
-        self._run = install.start_install(getattr(runtime.prefs(context), "pip_args", ""))
+        if not self.confirmed:
+            return context.window_manager.invoke_props_dialog(
+                self, width=480, title="Install Requirements?", confirm_text="Download and Install"
+            )
+        self._run = self._start(context)
         wm = context.window_manager
         wm.progress_begin(0, 100)
         self._timer = wm.event_timer_add(0.25, window=context.window)
@@ -81,6 +111,18 @@ class PROSPLAT_OT_install_requirements(bpy.types.Operator):
             return {"CANCELLED"}
         bpy.ops.prosplat.check_requirements()
         self.report({"INFO"}, f"{line}; installed into {runtime.deps_dir()}")
+        return {"FINISHED"}
+
+
+class PROSPLAT_OT_stop_worker(bpy.types.Operator):
+    """Stop the external worker process (it frees its memory; the next job starts a new one)"""
+
+    bl_idname = "prosplat.stop_worker"
+    bl_label = "Stop Worker"
+
+    def execute(self, context):
+        worker_process.shutdown()
+        self.report({"INFO"}, "the ProSplat worker was stopped; the next job starts a new one")
         return {"FINISHED"}
 
 
@@ -120,7 +162,18 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     )  # fmt: skip
     pip_args: StringProperty(
         name="Extra pip Arguments",
-        description="Added to the install command, e.g. an --extra-index-url for CPU-only torch",
+        description="Added to both pip runs, e.g. --proxy URL, or --find-links DIR for offline wheels",
+    )  # fmt: skip
+    torch_build: EnumProperty(name="torch Build", items=TORCH_BUILDS, default="CPU")
+    threads: IntProperty(
+        name="CPU Threads", default=0, min=0, soft_max=32,
+        description="torch threads per job (0: automatic, the physical cores up to 4, fewer "
+        "where idle threads would spin). Applies from the next job",
+    )  # fmt: skip
+    keep_worker: BoolProperty(
+        name="Keep Worker Running", default=True,
+        description="Run every external job in one process that keeps the models loaded "
+        "(off: a new process per job, seconds slower each time)",
     )  # fmt: skip
 
     def draw(self, context):
@@ -133,11 +186,18 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         col.prop(self, "budget")
         col.prop(self, "refine_seconds")
         col.prop(self, "max_input_size")
+        col.prop(self, "threads")
         box = layout.box()
         box.label(text="Where the heavy work runs", icon="SCRIPTPLUGINS")
         box.prop(self, "python_path")
         if self.python_path.strip():
             box.label(text="Jobs run in the external Python above (it needs prosplat installed).")
+            row = box.row()
+            row.prop(self, "keep_worker")
+            w = worker_process.current_worker()
+            if w is not None and w.alive():
+                row.label(text=f"worker running (pid {w.pid}, {w.submitted} jobs)")
+                row.operator(PROSPLAT_OT_stop_worker.bl_idname, icon="CANCEL")
         draw_requirements(box, self)
 
 
@@ -159,10 +219,17 @@ def draw_requirements(layout, prefs) -> None:
         layout.progress(factor=run.fraction, type="BAR", text=run.last_line[:80])
     else:
         row.operator(PROSPLAT_OT_install_requirements.bl_idname, icon="IMPORT")
+    layout.prop(prefs, "torch_build")
+    layout.label(text=install.describe_download(prefs.torch_build), icon="INFO")
     layout.prop(prefs, "pip_args")
     if "install" in _STATUS:
         ok, line = _STATUS["install"]
         layout.label(text=line[:160], icon="CHECKMARK" if ok else "ERROR")
 
 
-CLASSES = (PROSPLAT_OT_check_requirements, PROSPLAT_OT_install_requirements, ProSplatPreferences)
+CLASSES = (
+    PROSPLAT_OT_check_requirements,
+    PROSPLAT_OT_install_requirements,
+    PROSPLAT_OT_stop_worker,
+    ProSplatPreferences,
+)

@@ -30,8 +30,8 @@ REQUIREMENTS = (
     ("tqdm", "tqdm"),
     ("diffusers", "diffusers"),
 )
-#: What the install button asks pip for: numpy is left to Blender (it ships one).
-PIP_REQUIREMENTS = ("torch", "plyfile", "safetensors", "OpenImageIO", "tqdm", "diffusers")
+# What the install button asks pip for is the pinned, tested set in :mod:`.pins` (numpy is
+# left to Blender, which ships one); :mod:`.install` builds the pip commands.
 
 
 @dataclass
@@ -47,6 +47,9 @@ class Defaults:
     refine_seconds: float = 0.0  # README, "Refinement": why this default
     max_input_size: int = 256
     python_path: str = ""
+    threads: int = 0  # 0: automatic, prosplat.worker.threads.auto_threads
+    keep_worker: bool = True
+    torch_build: str = "CPU"
     extra: dict = field(default_factory=dict)
 
 
@@ -95,6 +98,7 @@ def check_prosplat_import() -> str | None:
     """Import ``prosplat`` for real (loads torch: seconds); None if it works, else the error.
     Cached, as a failed torch import is not retried cheaply; :func:`reset_import_check` clears."""
     if "result" not in _IMPORT_CHECK:
+        prefer_passive_wait()  # this import may be the one that loads torch (and OpenMP)
         try:
             import prosplat.worker.tasks  # noqa: F401
         except Exception as e:  # noqa: BLE001 - any import failure means "not usable here"
@@ -106,6 +110,25 @@ def check_prosplat_import() -> str | None:
 
 def reset_import_check() -> None:
     _IMPORT_CHECK.clear()
+
+
+def prefer_passive_wait() -> None:
+    """Idle OpenMP threads sleep instead of spinning (a busy CPU made torch's spinning
+    threads 10x slower; :mod:`prosplat.worker.threads`). Only works before torch loads, so
+    it is set before the first in-process job imports it, and not at all if something else
+    loaded torch first (the worker then picks fewer threads); a user's own setting wins."""
+    if "torch" not in sys.modules:
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+def thread_count(context=None) -> int:
+    """The *CPU Threads* preference (0: automatic, decided by the worker)."""
+    return max(0, int(getattr(prefs(context), "threads", 0) or 0))
+
+
+def keep_worker(context=None) -> bool:
+    """Whether external jobs go to the session's long-lived worker (else one process each)."""
+    return bool(getattr(prefs(context), "keep_worker", True))
 
 
 def external_python(context=None) -> str | None:

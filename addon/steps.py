@@ -266,8 +266,9 @@ def target_views(scene, mode: str, selected=(), active=None, inputs=None) -> lis
         for frame in range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)):
             scene.frame_set(frame)
             views.append(
-                {"name": f"{cam.name}_{frame:04d}", "camera": cameras.camera_dict(cam, scene)}
-            )
+                {"name": f"{cam.name}_{frame:04d}", "camera": cameras.camera_dict(cam, scene),
+                 "sequence": cam.name, "frame": frame}  # an image sequence NAME_####.png
+            )  # fmt: skip
     finally:
         scene.frame_set(current)
     return views
@@ -327,6 +328,9 @@ def resolution_warnings(gaussians, targets, inputs=None) -> list[str]:
 def apply_render(result: dict, show: bool = True) -> list:
     """Load each rendered view as a Blender Image (replacing an earlier one of the same name)
     and show the last one in any open Image Editor."""
+    seq = result.get("sequence")
+    if seq:  # a camera path: one image-sequence Image, not one Image per frame
+        return [_show(_load_sequence(seq, len(result.get("views", []))), show)]
     images = []
     for view in result.get("views", []):
         name = f"ProSplat {view['name']}"
@@ -338,11 +342,37 @@ def apply_render(result: dict, show: bool = True) -> list:
             img = bpy.data.images.load(view["image"])
             img.name = name
         images.append(img)
-    if show and images and bpy.context.screen is not None:
+    if images:
+        _show(images[-1], show)
+    return images
+
+
+def _load_sequence(seq: dict, count: int):
+    """The frames of a rendered camera path as one Image with source ``SEQUENCE``."""
+    name = f"ProSplat {seq['prefix']}"
+    old = bpy.data.images.get(name)
+    if old is not None:
+        bpy.data.images.remove(old)
+    img = bpy.data.images.load(seq["first"])
+    img.name, img.source = name, "SEQUENCE"
+    img["prosplat_frames"] = [int(f) for f in seq["frames"]]
+    return img
+
+
+def _show(img, show: bool = True):
+    """Show ``img`` in every open Image Editor (a sequence plays with the scene's frames:
+    file number = scene frame, as the files are numbered by frame)."""
+    if show and bpy.context.screen is not None:
         for area in bpy.context.screen.areas:
             if area.type == "IMAGE_EDITOR":
-                area.spaces.active.image = images[-1]
-    return images
+                area.spaces.active.image = img
+                if img.source == "SEQUENCE":
+                    frames = list(img.get("prosplat_frames", [1]))
+                    user = area.spaces.active.image_user
+                    user.frame_start, user.frame_offset = frames[0], frames[0] - 1
+                    user.frame_duration = frames[-1] - frames[0] + 1
+                    user.use_auto_refresh = True
+    return img
 
 
 def describe_render(result: dict) -> str:
@@ -350,4 +380,7 @@ def describe_render(result: dict) -> str:
     views = result.get("views", [])
     refs = [f"{v['name']}<-{v['reference_name']}" for v in views if v.get("reference_name")]
     text = f"{len(views)} view(s) written to {result.get('output_dir', '?')}"
+    if result.get("sequence"):
+        text = (f"{len(views)} frame(s) written to {result.get('output_dir', '?')} as "
+                f"{result['sequence']['pattern']}")  # fmt: skip
     return text + (f"; reference: {', '.join(refs[:6])}" if refs else "")

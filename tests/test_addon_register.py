@@ -191,7 +191,8 @@ def test_panels_and_menus_draw(blank, tmp_path: Path) -> None:
     assert ("template_list", "PROSPLAT_UL_views") in log and ("prop", "prosplat_use") in log
     ui.menu_import(fake, bpy.context)
     ui.menu_export(fake, bpy.context)
-    preferences.draw_requirements(_Layout(log), type("Prefs", (), {"pip_args": ""})())
+    prefs = type("Prefs", (), {"pip_args": "", "torch_build": "CPU"})()
+    preferences.draw_requirements(_Layout(log), prefs)
     ops = {name for kind, name in log if kind == "operator"}
     assert {
         "prosplat.reconstruct",
@@ -208,16 +209,18 @@ def test_panels_and_menus_draw(blank, tmp_path: Path) -> None:
 def test_pip_install_reports_progress_and_result() -> None:
     from addon import install
 
-    cmd = install.pip_command("/deps", ["torch"], "--extra-index-url URL")
-    assert cmd[1:5] == ["-m", "pip", "install", "--upgrade"] and cmd[-1] == "torch"
-    assert cmd[cmd.index("--target") + 1] == "/deps" and "--extra-index-url" in cmd
+    cmd = install.pip_commands("/deps", "CPU", "--proxy URL")[-1]  # tests/test_addon_install.py
+    assert cmd[1:5] == ["-m", "pip", "install", "--upgrade"] and "--proxy" in cmd
+    assert cmd[cmd.index("--target") + 1] == "/deps"
     script = "print('Collecting torch'); print('Installing collected packages: torch'); "
-    ok = install.PipInstall([sys.executable, "-c", script + "print('Successfully installed t-2')"])
+    ok = install.PipInstall(
+        [[sys.executable, "-c", script + "print('Successfully installed t-2')"]]
+    )
     ok.start().wait()
     assert ok.poll() and ok.fraction == 1.0
-    assert ok.summary() == (True, "Successfully installed t-2")
+    assert ok.summary()[0] and ok.summary()[1].startswith("installed 1 packages")
     fail = "import sys; print('ERROR: No matching distribution found for torch'); sys.exit(1)"
-    bad = install.PipInstall([sys.executable, "-c", fail]).start()
+    bad = install.PipInstall([[sys.executable, "-c", fail]]).start()
     bad.wait()
     assert bad.summary() == (
         False,

@@ -202,12 +202,13 @@ def test_render_without_improver_warns_and_saves_raw(scene, tmp_path: Path, monk
     """No improvement weights anywhere (shipped file absent): raw renders and a warning."""
     import prosplat.improve.io
     from prosplat.worker import tasks
+    from prosplat.worker.models import ModelCache
 
     folder, cams = scene
     monkeypatch.setattr(
         prosplat.improve.io, "DEFAULT_IMPROVE_WEIGHTS", tmp_path / "missing.safetensors"
     )
-    monkeypatch.setattr(tasks, "_MODEL_CACHE", {})
+    monkeypatch.setattr(tasks, "MODELS", ModelCache())
     assert tasks.load_model(None, torch.device("cpu"), None).improver is None
     g = to_attributes(random_gaussians(50, 0))
     targets = [{"name": "v", "camera": camera_to_blender_dict(cams[0])}]

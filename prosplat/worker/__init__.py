@@ -12,6 +12,17 @@ Blender's Python (when ``prosplat`` imports there) or to an external interpreter
 ``JOB.result.npz``. Creating ``JOB.cancel`` asks the worker to stop at its next step; outputs
 appear only complete (temporary files renamed into place), so a cancelled or failed job leaves
 nothing half-written. The tasks themselves live in :mod:`prosplat.worker.tasks`.
+
+A long-lived worker runs many such jobs and keeps the models loaded between them
+(:mod:`prosplat.worker.models`)::
+
+    python -m prosplat.worker --serve
+
+reads one request per line on stdin (``{"id": ..., "job": "/path/JOB.json"}``, or
+``{"cmd": "ping"}`` / ``{"cmd": "stop"}``) and answers one JSON line per request on stdout;
+the job itself speaks through the same files as above (see :mod:`prosplat.worker.serve`).
+A job's params may carry ``"threads"`` (0: automatic), the torch CPU thread count it runs
+with (:mod:`prosplat.worker.threads`).
 """
 
 from __future__ import annotations
@@ -43,6 +54,10 @@ PROTOCOL = 1
 EXIT_DONE, EXIT_ERROR, EXIT_CANCELLED, EXIT_USAGE = 0, 1, 3, 2
 # Errors whose message is the whole story (bad input); anything else also gets a traceback.
 USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, IsADirectoryError, OSError)
+
+
+#: Jobs this process has run (reported in every result's ``worker`` entry).
+STATS = {"jobs": 0}
 
 
 class Cancelled(Exception):
@@ -93,8 +108,19 @@ def run_task(task: str, params: dict[str, Any], progress: Progress | None = None
     if not isinstance(params, dict):
         raise ValueError(f"params of task {task!r} must be an object, got {type(params).__name__}")
     progress = progress or Progress()
+    info: dict[str, Any] = {"pid": os.getpid()}
+    if "threads" in params:
+        from prosplat.worker.threads import apply_threads
+
+        params = dict(params)
+        info["threads"] = apply_threads(params.pop("threads"))
+    STATS["jobs"] += 1
     result = TASKS[task](params, progress)
     result["warnings"] = list(progress.warnings)
+    from prosplat.worker.models import MODELS
+
+    info.update(jobs=STATS["jobs"], **MODELS.stats())
+    result["worker"] = info
     return result
 
 
@@ -161,10 +187,10 @@ def run_job_file(job_path: str | Path) -> int:
         return EXIT_ERROR
     status = _StatusWriter(files["status"], task)
     status.write("running", 0.0, "starting")
-    if "arrays_file" in params:
-        params = {**params, "arrays": load_arrays(params["arrays_file"])}
     progress = Progress(status.running, cancel_check=files["cancel"].exists)
     try:
+        if "arrays_file" in params:
+            params = {**params, "arrays": load_arrays(params["arrays_file"])}
         result = run_task(task, params, progress)
     except Cancelled:
         status.write("cancelled", progress.fraction, "cancelled")
@@ -187,8 +213,12 @@ def run_job_file(job_path: str | Path) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if argv == ["--serve"]:
+        from prosplat.worker.serve import serve
+
+        return serve()
     if len(argv) != 1 or argv[0] in ("-h", "--help"):
         print(__doc__.strip().split("\n\n")[1], file=sys.stderr)
-        print("\nusage: python -m prosplat.worker JOB.json", file=sys.stderr)
+        print("\nusage: python -m prosplat.worker JOB.json | --serve", file=sys.stderr)
         return EXIT_USAGE
     return run_job_file(argv[0])

@@ -23,9 +23,9 @@ from prosplat.convert.pointcloud import from_attributes, to_attributes, transfor
 from prosplat.convert.posed import camera_from_dict, camera_to_blender_dict, read_posed_images
 from prosplat.gaussians import Gaussians
 from prosplat.worker import Progress
+from prosplat.worker.models import MODELS
 
 SIZE_MULTIPLE = 32  # the generator's image sizes are multiples of this
-_MODEL_CACHE: dict[tuple, Any] = {}
 
 
 def pick_device(name: str | None) -> torch.device:
@@ -49,19 +49,13 @@ def pick_device(name: str | None) -> torch.device:
 
 
 def load_model(weights: str | None, device: torch.device, improve: str | bool | None = False):
-    """``ProSplat.from_pretrained`` once per (weights, improve, device) in this process.
+    """The model for a job, from this process's :data:`~prosplat.worker.models.MODELS` cache
+    (loaded on first use, then kept for the next jobs; see :mod:`prosplat.worker.models`).
 
     ``improve``: the stage-2 checkpoint path, None for the shipped one (if any), False for
     none (reconstruction never needs stage 2, so it does not pay for loading it).
     """
-    from prosplat.pipeline import ProSplat
-
-    key = (str(weights or ""), str(improve), str(device))
-    if key not in _MODEL_CACHE:
-        _MODEL_CACHE.clear()  # one model at a time: they can be large
-        _MODEL_CACHE[key] = ProSplat.from_pretrained(weights or None, device=device,
-                                                     improve=improve)  # fmt: skip
-    return _MODEL_CACHE[key]
+    return MODELS.get(weights, device, improve)
 
 
 def load_frames(frames: list, progress: Progress, lo: float, hi: float, background=None):
@@ -262,9 +256,33 @@ def _render_one(model, g: Gaussians, cam: Camera, images, cameras, enhance: bool
     return model.render(g, cam, images, cameras if cameras else None, enhance=enhance)
 
 
+def _sequence_of(targets: list) -> tuple[str, list[int]] | None:
+    """(name, frame numbers) when the targets are one camera over a frame range (each has
+    ``"sequence"`` and ``"frame"``, as the add-on's Frame Range mode sends), else None."""
+    names = {t.get("sequence") for t in targets}
+    if len(names) != 1 or None in names or any(t.get("frame") is None for t in targets):
+        return None
+    return str(names.pop()), [int(t["frame"]) for t in targets]
+
+
+def _sequence_prefix(folder: Path, name: str, frames: list[int], suffixes: list[str]) -> str:
+    """``name``, or ``name-2``, ``name-3``... so that no frame file of the sequence exists:
+    a rerun never replaces a frame, and never mixes numbered names into the old sequence."""
+    candidate, k = name, 1
+    while any((folder / f"{candidate}_{f:04d}{s}").exists() for f in frames for s in suffixes):
+        k += 1
+        candidate = f"{name}-{k}"
+    return candidate
+
+
 def task_render(params: dict, progress: Progress) -> dict:
-    """Render target cameras (and enhance them) into files in ``output_dir``."""
-    from prosplat.image_io import write_depth, write_image
+    """Render target cameras (and enhance them) into files in ``output_dir``.
+
+    A camera path (targets with ``"sequence"`` and ``"frame"``) becomes an image sequence
+    ``NAME_0001.png, NAME_0002.png, ...`` numbered by frame, under one prefix chosen so that
+    no frame file exists yet. Progress is reported per view; a cancel or an error stops at
+    the next view and removes the files this job wrote, so a job leaves all or nothing.
+    """
 
     out_dir = Path(params["output_dir"])
     targets = params.get("targets") or []
@@ -295,32 +313,67 @@ def task_render(params: dict, progress: Progress) -> dict:
         enhance = False
     g = _gaussians_from(params).to(device, torch.float32)
     out_dir.mkdir(parents=True, exist_ok=True)
-    views = []
-    for i, (t, cam) in enumerate(zip(targets, cams)):
-        progress(0.2 + 0.8 * i / len(cams), f"rendering {t.get('name', i)} ({i + 1}/{len(cams)})")
-        try:
-            v = _render_one(model, g, cam, images, in_cams, enhance)
-        except ValueError as e:
-            if not enhance or "improv" not in str(e).lower():
-                raise
-            progress.warn(f"enhancement unavailable ({e}); saved raw renders instead")
-            enhance = False
-            v = _render_one(model, g, cam, images, in_cams, False)
-        suffixes = [".png"] + ["_raw.png"] * bool(params.get("save_raw") and enhance)
-        suffixes += ["_depth.exr"] * bool(params.get("save_depth"))
+    sequence = _sequence_of(targets)
+    suffixes = [".png"] + ["_raw.png"] * bool(params.get("save_raw") and enhance)
+    suffixes += ["_depth.exr"] * bool(params.get("save_depth"))
+    prefix = None
+    if sequence is not None:
+        prefix = _sequence_prefix(out_dir, _safe_name(sequence[0]), sequence[1], suffixes)
+    views: list[dict] = []
+    written: list[Path] = []
+    try:
+        for i, (t, cam) in enumerate(zip(targets, cams)):
+            what = f"frame {t['frame']}" if prefix else str(t.get("name", i))
+            progress(0.2 + 0.8 * i / len(cams), f"rendering {what} ({i + 1}/{len(cams)})")
+            views.append(_render_and_save(model, g, cam, images, in_cams, enhance, params,
+                                          progress, out_dir, t, i, prefix, written, frames))  # fmt: skip
+            enhance = views[-1]["enhanced"]
+    except BaseException:
+        for path in written:  # all or nothing: a cancelled sequence leaves no frames behind
+            path.unlink(missing_ok=True)
+        raise
+    result: dict[str, Any] = {"views": views, "output_dir": str(out_dir)}
+    if prefix is not None:
+        result["sequence"] = {"prefix": prefix, "frames": sequence[1],
+                              "pattern": f"{prefix}_####.png", "first": views[0]["image"]}  # fmt: skip
+    return result
+
+
+def _render_and_save(model, g, cam, images, in_cams, enhance, params, progress, out_dir,
+                     t, i, prefix, written, frames) -> dict:  # fmt: skip
+    """One view: render (raw if enhancement fails), write its files, say what was written."""
+    from prosplat.image_io import write_depth, write_image
+
+    try:
+        v = _render_one(model, g, cam, images, in_cams, enhance)
+    except ValueError as e:
+        if not enhance or "improv" not in str(e).lower():
+            raise
+        progress.warn(f"enhancement unavailable ({e}); saved raw renders instead")
+        enhance = False
+        v = _render_one(model, g, cam, images, in_cams, False)
+    suffixes = [".png"] + ["_raw.png"] * bool(params.get("save_raw") and enhance)
+    suffixes += ["_depth.exr"] * bool(params.get("save_depth"))
+    if prefix is not None:
+        stem = f"{prefix}_{int(t['frame']):04d}"
+    else:
         stem = _unique_stem(out_dir, _safe_name(str(t.get("name", f"view_{i:03d}"))), suffixes)
-        rec = {"name": t.get("name"), "image": str(write_image(out_dir / f"{stem}.png", v.image))}
-        if "_raw.png" in suffixes:
-            rec["raw"] = str(write_image(out_dir / f"{stem}_raw.png", v.raw))
-        if params.get("save_depth"):
-            rec["depth"] = str(write_depth(out_dir / f"{stem}_depth.exr", v.depth.float().cpu()))
-        ref = v.reference
-        rec["reference"] = None if ref is None else int(ref)
-        rec["reference_name"] = None if ref is None else frames[int(ref)].get("name")
-        rec["timings"] = {k: float(x) for k, x in dict(v.timings).items()}
-        rec["enhanced"] = enhance
-        views.append(rec)
-    return {"views": views, "output_dir": str(out_dir)}
+    rec = {"name": t.get("name"), "image": str(write_image(out_dir / f"{stem}.png", v.image))}
+    written.append(Path(rec["image"]))
+    if "_raw.png" in suffixes:
+        rec["raw"] = str(write_image(out_dir / f"{stem}_raw.png", v.raw))
+        written.append(Path(rec["raw"]))
+    if params.get("save_depth"):
+        rec["depth"] = str(write_depth(out_dir / f"{stem}_depth.exr", v.depth.float().cpu()))
+        written.append(Path(rec["depth"]))
+    ref = v.reference
+    rec["reference"] = None if ref is None else int(ref)
+    rec["reference_name"] = None if ref is None else frames[int(ref)].get("name")
+    rec["timings"] = {k: float(x) for k, x in dict(v.timings).items()}
+    rec["enhanced"] = enhance
+    if prefix is not None:
+        rec["frame"] = int(t["frame"])
+    return rec
 
 
 TASKS = {
