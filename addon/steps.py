@@ -383,4 +383,6 @@ def describe_render(result: dict) -> str:
     if result.get("sequence"):
         text = (f"{len(views)} frame(s) written to {result.get('output_dir', '?')} as "
                 f"{result['sequence']['pattern']}")  # fmt: skip
-    return text + (f"; reference: {', '.join(refs[:6])}" if refs else "")
+    kept = [f"{v.get('name', '?')}: {v['guard']}" for v in views if v.get("guard")]
+    text += f"; reference: {', '.join(refs[:6])}" if refs else ""
+    return text + (f"; raw render kept for {'; '.join(kept[:3])}" if kept else "")

@@ -371,6 +371,7 @@ def _render_and_save(model, g, cam, images, in_cams, enhance, params, progress, 
     rec["reference_name"] = None if ref is None else frames[int(ref)].get("name")
     rec["timings"] = {k: float(x) for k, x in dict(v.timings).items()}
     rec["enhanced"] = enhance
+    rec["guard"] = getattr(v, "guard", None)  # why the raw render was kept, if it was
     if prefix is not None:
         rec["frame"] = int(t["frame"])
     return rec
