@@ -3,6 +3,7 @@ and the alpha input, against epipolar geometry computed from the cameras themsel
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from prosplat.camera import Camera
@@ -80,3 +81,29 @@ def test_alpha_input_starts_as_identity_and_then_matters():
         torch.nn.init.normal_(model.alpha_in.weight)
         torch.nn.init.normal_(model.vae.decoder.conv_out.weight, std=0.1)
         assert not torch.allclose(model(x, ref, F, holes), model(x, ref, F))
+
+
+def test_replicate_padding_cannot_stamp_a_pattern_on_a_flat_view():
+    """With zero padding the network knows where it is in the image, so a flat grey render
+    comes back with structure (v1's fixed pattern); with replicate padding (every padded
+    convolution, and the VAE's stride-2 convolutions made symmetric) it cannot."""
+    torch.manual_seed(0)
+    flat = torch.full((1, 3, 32, 32), 0.5)
+    F = torch.zeros(1, 3, 3, dtype=torch.float64)
+
+    def spread(model):
+        with torch.no_grad():
+            torch.nn.init.normal_(model.vae.decoder.conv_out.weight, std=0.1)
+            change = model.eval()(flat, flat, F) - flat
+        return float((change - change.mean(dim=(2, 3), keepdim=True)).abs().max())
+
+    zeros = ImproveModel(ImproveConfig())
+    assert spread(zeros) > 1e-3
+    state = zeros.state_dict()
+    rep = ImproveModel(ImproveConfig(padding="replicate"))
+    rep.load_state_dict(state)  # same parameters, same names
+    assert spread(rep) < 1e-5
+    zeros.set_padding("replicate")  # in place, as fine-tuning from zero-padded weights does
+    assert zeros.config.padding == "replicate" and spread(zeros) < 1e-5
+    with pytest.raises(ValueError, match="zero to replicate"):
+        zeros.set_padding("zeros")

@@ -12,6 +12,9 @@ import json
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
+#: How convolutions may pad (``ImproveConfig.padding``).
+PADDINGS = ("zeros", "replicate")
+
 #: The empty-prompt embedding SD-Turbo's U-Net cross-attends to has 77 CLIP tokens.
 SD_PROMPT_TOKENS = 77
 
@@ -62,6 +65,12 @@ class ImproveConfig:
             to its first features, so the model knows where it must fill rather than guess
             it from black pixels. Zero-initialised: weights without it load and behave the
             same (:func:`prosplat.improve.io.load_improver` with ``alpha_input=True``).
+        padding: how every padded convolution extends the image: "zeros" (diffusers' default)
+            or "replicate". Zero padding tells a network where the border is, and through
+            many layers where every pixel is, which is how a model can stamp the same picture
+            on every view (v1's fixed pattern: a flat grey render comes back with it).
+            Replicate padding keeps the network translation-equivariant away from the
+            border, so a flat input gives a flat change.
     """
 
     vae_channels: tuple[int, ...] = (32, 64, 64)
@@ -85,6 +94,7 @@ class ImproveConfig:
     residual: bool = True
     working_size: int = 64
     alpha_input: bool = False
+    padding: str = "zeros"
 
     def __post_init__(self) -> None:
         for name in ("vae_channels", "unet_channels"):
@@ -115,6 +125,10 @@ class ImproveConfig:
         if min(self.latent_channels, self.prompt_tokens, self.dwea_heads) < 1:
             raise ValueError(
                 "ImproveConfig latent_channels, prompt_tokens, dwea_heads must be >= 1"
+            )
+        if self.padding not in PADDINGS:
+            raise ValueError(
+                f"ImproveConfig.padding must be one of {PADDINGS}, got {self.padding!r}"
             )
         if self.working_size < 0:
             raise ValueError(f"ImproveConfig.working_size must be >= 0, got {self.working_size}")

@@ -133,6 +133,42 @@ class ImproveModel(nn.Module):
         else:
             self.dwea = None
             self.injection = None
+        self.set_padding(config.padding)
+
+    def set_padding(self, mode: str) -> None:
+        """Pad every padded convolution with ``mode`` ("zeros" or "replicate"; see
+        ``ImproveConfig.padding``) and record it in the config.
+
+        ``padding_mode`` is ``nn.Conv2d``'s own attribute, read on every forward. The VAE's
+        stride-2 convolutions pad one zero row and column on the bottom and right instead
+        (diffusers' ``Downsample2D`` with ``padding=0``), which marks the image's corner at
+        every level; "replicate" gives them a symmetric replicate padding of 1 (a half-pixel
+        shift of that level, which fine-tuning absorbs). Going back to "zeros" is refused:
+        those convolutions would not be the ones the weights were trained with.
+        """
+        if mode == self.config.padding and mode == "zeros":
+            return
+        if mode != "replicate":
+            raise ValueError(
+                f"set_padding: a model can only go from zero to replicate padding, not to {mode!r}"
+            )
+        from diffusers.models.downsampling import Downsample2D
+
+        self.config = self.config.with_(padding=mode)
+        for m in list(self.modules()):
+            if isinstance(m, Downsample2D) and m.use_conv and m.padding == 0:
+                old = m.conv
+                conv = nn.Conv2d(
+                    old.in_channels, old.out_channels, old.kernel_size, old.stride, padding=1,
+                    bias=old.bias is not None, padding_mode=mode,
+                )  # fmt: skip
+                conv.weight, conv.bias = old.weight, old.bias
+                m.conv, m.padding = conv, 1
+                if getattr(m, "Conv2d_0", None) is old:  # diffusers keeps a second name for it
+                    m.Conv2d_0 = conv
+        for m in self.modules():
+            if isinstance(m, nn.Conv2d) and any(int(p) > 0 for p in m.padding):
+                m.padding_mode = mode
 
     # ---- layout helpers ---------------------------------------------------------------------
     def _encoder_block_inputs(self) -> list[int]:

@@ -68,6 +68,7 @@ class ImproveTrainConfig:
     crop: int = 0  # random square crops of this size (0: whole views; prosplat.train.augment)
     flip: bool = False  # random horizontal flips (the fundamental matrices follow)
     alpha: bool = False  # give the model the render's alpha (needs a set curated with alpha)
+    padding: str = ""  # set the convolutions' padding ("zeros" | "replicate"; "": the model's)
 
 
 @dataclass(frozen=True)
@@ -247,6 +248,8 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         raise ValueError(
             f"--crop must be a multiple of {model.config.size_multiple}, got {cfg.crop}"
         )
+    if cfg.padding:
+        model.set_padding(cfg.padding)
     # the views' size, not the crops': the model learns textures at the scale of whole views
     model.config = model.config.with_(working_size=max(data["render"].shape[-2:]))
     augment_rng = torch.Generator().manual_seed(cfg.seed + 1)
