@@ -54,11 +54,13 @@ class ImproveConfig:
             training can only start from "no change". For training from scratch on a CPU
             this is what makes a few thousand steps enough; a pretrained SD-Turbo decoder
             already reproduces images, so that path turns it off.
-        working_size: the longest image side the model was trained at. A larger view is
-            enhanced at this size and only the change is carried up to the full resolution
-            (:mod:`prosplat.enhance`): a model trained on 64-px crops sees textures at another
-            scale in a 1080p frame, and its bottleneck attention would grow with the square of
-            the pixel count. 0 runs every view at its own size. Not an architecture
+        working_size: the largest view (longest side) the model runs on directly. A larger
+            view is enhanced at this size and only the change is carried up to the full
+            resolution (:mod:`prosplat.enhance`): memory stays bounded whatever the camera, and
+            a model trained on small views sees textures near the scale it learned. ``prosplat
+            train improve`` sets it to the training views' size; a model that measures better
+            run natively above that size (the shipped v2, up to 256 px: BENCHMARKS) is shipped
+            with a larger one. 0 runs every view at its own size. Not an architecture
             parameter: it travels in the config so the weights say how to use them.
         alpha_input: the render's alpha (where the Gaussians cover the view; holes are 0)
             enters the VAE encoder of the render through a zero-initialised convolution added
