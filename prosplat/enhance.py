@@ -6,11 +6,12 @@ any camera works here because the render and the reference are padded on the rig
 bottom (edge replicate) and the result cropped back. Padding there leaves pixel coordinates,
 and so the fundamental matrix, unchanged.
 
-Any camera size: a view larger than the model's ``working_size`` (the size it was trained at)
-is enhanced at that size, and only the change, ``enhanced - raw`` at the working size, is
-upsampled and added to the full-resolution render. The render keeps its own detail, the model
-sees textures at the scale it learned, memory stays bounded by the working size whatever the
-camera (a 4K frame costs what a 64-px one does), and there are no tile seams.
+Any camera size: a view larger than the model's ``working_size`` (the largest view it runs on
+directly: 256 for the shipped v2) is enhanced at that size, and only the change, ``enhanced -
+raw`` at the working size, is upsampled and added to the full-resolution render. The render
+keeps its own detail, the model sees textures near the scale it learned, memory stays bounded
+by the working size whatever the camera (a 4K frame costs what a working-size one does), and
+there are no tile seams.
 
 The guard: enhancing a view that the Gaussians barely cover asks the model to invent a
 picture, and a model that rewrites pixels the render is sure of has left its training
