@@ -24,12 +24,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from prosplat.bench.machine import cpu_name
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES = {
@@ -78,16 +79,6 @@ def child(mode: str, scene: Path, calls: int, threads: int, code: Path) -> list[
     if hasattr(jobs := sys.modules["addon.jobs"], "shutdown_workers"):
         jobs.shutdown_workers()
     return times
-
-
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _commit() -> str:
@@ -145,7 +136,7 @@ def main() -> None:
         for p in spin:
             p.kill()
             p.wait()
-    meta = {"cpu": _cpu_name(), "cpu_count": os.cpu_count(), "busy": args.busy,
+    meta = {"cpu": cpu_name(), "cpu_count": os.cpu_count(), "busy": args.busy,
             "threads_pref": args.threads, "runs": args.runs, "calls": args.calls,
             "commit": args.label or _commit(), "time": time.strftime("%Y-%m-%d %H:%M"),
             "size": "128x128 target, 2 inputs of 128x128, enhanced (improve_tiny)"}  # fmt: skip

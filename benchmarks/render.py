@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import resource
 import statistics
 import subprocess
@@ -25,16 +24,6 @@ from pathlib import Path
 # (label, render size, input depth-map size (W, H)): N = 2 x W x H Gaussians.
 CONFIGS = [("64²/4K", 64, (64, 32)), ("256²/131K", 256, (256, 256)), ("512²/524K", 512, (512, 512))]
 TWIN_MAX_PAIRS = 5e7  # the dense twin holds pixels x Gaussians per tensor
-
-
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _rss_bytes() -> int:
@@ -137,7 +126,9 @@ def main() -> None:
                 if r["config"] == label:
                     r["max_abs_diff_vs_twin"] = diff
 
-    machine = f"{_cpu_name()}, {torch.get_num_threads()} threads, torch {torch.__version__}"
+    from prosplat.bench.machine import cpu_name
+
+    machine = f"{cpu_name()}, {torch.get_num_threads()} threads, torch {torch.__version__}"
     print(f"\nMachine: {machine}; median of {args.repeats} runs\n")
     print("| config | path | fwd ms | fwd+bwd ms | fwd peak MB | fwd+bwd peak MB |")
     print("|---|---|---:|---:|---:|---:|")

@@ -6,21 +6,14 @@ from __future__ import annotations
 import pytest
 import torch
 import torch.nn.functional as F
+from test_improve_model import SMALL as TINY_TEST
 
 from prosplat import ProSplat
 from prosplat.demo_scene import demo_scene, orbit_cameras
 from prosplat.enhance import EnhanceOptions, enhance, guard_reason
-from prosplat.improve.config import ImproveConfig
 from prosplat.improve.model import ImproveModel
 
-SMALL = ImproveConfig(
-    vae_channels=(16, 16),
-    vae_groups=8,
-    unet_channels=(16, 16, 16),
-    unet_groups=8,
-    cross_attention_dim=16,
-    working_size=32,
-)
+SMALL = TINY_TEST.with_(working_size=32)  # the other stage-2 tests' small model
 
 
 def _model() -> ImproveModel:
