@@ -59,8 +59,8 @@ class ImproveConfig:
             resolution (:mod:`prosplat.enhance`): memory stays bounded whatever the camera, and
             a model trained on small views sees textures near the scale it learned. ``prosplat
             train improve`` sets it to the training views' size; a model that measures better
-            run natively above that size (the shipped v2, up to 256 px: BENCHMARKS) is shipped
-            with a larger one. 0 runs every view at its own size. Not an architecture
+            run natively above that size (the v2 candidate, up to 256 px: BENCHMARKS) can be
+            saved with a larger one. 0 runs every view at its own size. Not an architecture
             parameter: it travels in the config so the weights say how to use them.
         alpha_input: the render's alpha (where the Gaussians cover the view; holes are 0)
             enters the VAE encoder of the render through a zero-initialised convolution added
