@@ -27,7 +27,7 @@ from prosplat import ProSplat
 from prosplat.budget import prune_pixel_aligned
 from prosplat.data import find_scenes, load_scene
 from prosplat.data.scene import resize_views
-from prosplat.enhance import EnhanceOptions, enhance, render_view
+from prosplat.enhance import EnhanceOptions, departure, enhance, render_view
 from prosplat.evaluate import pick_inputs
 from prosplat.flicker import camera_path, flicker
 from prosplat.image_io import write_image
@@ -35,11 +35,6 @@ from prosplat.improve.mori import select_reference
 from prosplat.improve.pattern import fixed_pattern_score
 from prosplat.metrics import LPIPS, psnr
 from prosplat.render import render
-
-
-def _departure(raw: torch.Tensor, out: torch.Tensor, alpha: torch.Tensor) -> float:
-    sure = alpha > EnhanceOptions().confident_alpha
-    return float((out - raw).abs().mean(0)[sure].mean()) if bool(sure.any()) else 0.0
 
 
 def _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args) -> dict:
@@ -114,7 +109,9 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
                             key = f"{label} ws{ws}"
                             row[f"psnr {key}"] = float(psnr(e, gt))
                             row[f"lpips {key}"] = float(lpips(e[None], gt[None]))
-                            row[f"departure {key}"] = _departure(r.rgb, e, r.alpha)
+                            row[f"departure {key}"] = departure(
+                                r.rgb, e, r.alpha, EnhanceOptions().confident_alpha
+                            )
                             if kind == "target":
                                 changes.setdefault((size, key), []).append(e - r.rgb)
                 rows.append(row)

@@ -18,7 +18,7 @@ import torch
 from prosplat.improve.io import load_improver
 from prosplat.improve.pattern import fixed_pattern_score
 from prosplat.metrics import LPIPS, psnr
-from prosplat.train.curate import curated_batch, load_curated
+from prosplat.train.curate import curated_alpha, curated_batch, load_curated
 
 
 @torch.no_grad()
@@ -28,7 +28,7 @@ def score(model, data, lpips: LPIPS, batch: int = 16) -> dict[str, float]:
     for i in range(0, n, batch):
         idx = torch.arange(i, min(n, i + batch))
         raw, ref, fund, gt = curated_batch(data, idx, "paper", "cpu")
-        alpha = data["alpha"][idx].float()[:, None] if "alpha" in data else None
+        alpha = curated_alpha(data, idx, "cpu")
         out = model(raw, ref, fund, alpha)
         ps += [float(psnr(o, g)) for o, g in zip(out, gt, strict=True)]
         lp += lpips(out, gt).flatten().tolist()

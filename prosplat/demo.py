@@ -249,11 +249,9 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         f"loading the generator ({cfg.generator or cfg.weights or 'shipped'}) and the "
         f"improvement model ({cfg.improve or 'shipped'})"
     )
-    improve = cfg.improve or True
-    if cfg.generator:
-        model = ProSplat.from_pretrained(generator=cfg.generator, improve=improve)
-    else:
-        model = ProSplat.from_pretrained(cfg.weights, improve=improve)
+    model = ProSplat.from_pretrained(
+        cfg.weights, generator=cfg.generator, improve=cfg.improve or True
+    )
     t0 = time.perf_counter()
     recon = model.reconstruct_full(in_images, in_cams, near, far)
     t_recon = time.perf_counter() - t0

@@ -85,6 +85,13 @@ class EnhanceOptions:
             raise ValueError(f"max_departure must be > 0, got {self.max_departure}")
 
 
+def departure(raw: Tensor, enhanced: Tensor, alpha: Tensor, confident_alpha: float) -> float:
+    """Mean absolute change of ``enhanced`` from ``raw`` ([3,H,W]) over the pixels whose
+    ``alpha [H,W]`` exceeds ``confident_alpha`` (0 when there are none)."""
+    sure = alpha > confident_alpha  # [H,W]
+    return float((enhanced - raw).abs().mean(0)[sure].mean()) if bool(sure.any()) else 0.0
+
+
 def guard_reason(
     raw: Tensor, enhanced: Tensor, alpha: Tensor, options: EnhanceOptions
 ) -> str | None:
@@ -92,14 +99,12 @@ def guard_reason(
     coverage = float(alpha.mean())
     if coverage < options.min_coverage:
         return f"coverage {coverage:.0%} < {options.min_coverage:.0%}: nothing to enhance"
-    sure = alpha > options.confident_alpha  # [H,W]
-    if bool(sure.any()):
-        departure = float((enhanced - raw).abs().mean(0)[sure].mean())
-        if departure > options.max_departure:
-            return (
-                f"the model changed confident pixels by {departure:.3f} on average "
-                f"(> {options.max_departure}): out of its training distribution"
-            )
+    change = departure(raw, enhanced, alpha, options.confident_alpha)
+    if change > options.max_departure:
+        return (
+            f"the model changed confident pixels by {change:.3f} on average "
+            f"(> {options.max_departure}): out of its training distribution"
+        )
     return None
 
 

@@ -70,7 +70,6 @@ def warp_next(
     """The next frame ``[3,H,W]`` resampled onto ``cam``'s pixels through ``depth [H,W]``
     (z-depth of ``cam``'s render; 0 or less = empty), and the mask [H,W] of pixels both
     frames see (in view, and ``depth_next`` agreeing with the reprojection)."""
-    h, w = depth.shape
     uv = cam.pixel_centers(torch.float64)  # [H,W,2]
     points = cam.unproject(uv, depth.double())  # [H,W,3]
     uv_next, z_next = cam_next.project(points)  # [H,W,2], [H,W]

@@ -282,9 +282,7 @@ def load_model(args: argparse.Namespace):
     generator = getattr(args, "generator", None)
     if generator and args.weights:
         raise ValueError("pass either --weights (a prosplat generator) or --generator (DepthSplat)")
-    if generator:
-        return ProSplat.from_pretrained(generator=generator, improve=improve)
-    return ProSplat.from_pretrained(args.weights, improve=improve)
+    return ProSplat.from_pretrained(args.weights, generator=generator, improve=improve)
 
 
 def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:

@@ -32,3 +32,15 @@ def write_synthetic_scene(folder, size=32, n_views=5):
     meta = {"near": 0.5, "far": 10.0, "seed": 1, "family": "tabletop"}
     write_transforms(folder / "transforms.json", frames, meta)
     return cams
+
+
+def worker_scene(folder, size=32):
+    """A 3-view synthetic scene in ``folder`` as the worker takes it: (input frames 0 and 2,
+    each ``{"name", "image", "camera"}`` with a Blender camera dict, and view 1's camera dict
+    as a target)."""
+    from prosplat.convert.posed import camera_to_blender_dict
+
+    cams = write_synthetic_scene(folder, size=size, n_views=3)
+    frames = [{"name": f"{i:03d}", "image": str(folder / "images" / f"{i:03d}.png"),
+               "camera": camera_to_blender_dict(cams[i])} for i in (0, 2)]  # fmt: skip
+    return frames, camera_to_blender_dict(cams[1])

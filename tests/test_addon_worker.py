@@ -15,19 +15,16 @@ pytestmark = pytest.mark.blender
 pytest.importorskip("bpy")
 
 import addon_support  # noqa: E402, F401 - puts the repository root on sys.path
-from synthetic_scenes import write_synthetic_scene  # noqa: E402
+from synthetic_scenes import worker_scene  # noqa: E402
 
 from addon import jobs, runtime, worker_process  # noqa: E402
-from prosplat.convert.posed import camera_to_blender_dict  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> dict:
     folder = tmp_path_factory.mktemp("scene") / "s"
-    cams = write_synthetic_scene(folder, size=32, n_views=3)
-    frames = [{"name": f"{i:03d}", "image": str(folder / "images" / f"{i:03d}.png"),
-               "camera": camera_to_blender_dict(cams[i])} for i in (0, 2)]  # fmt: skip
-    return {"folder": folder, "frames": frames, "target": camera_to_blender_dict(cams[1])}
+    frames, target = worker_scene(folder)
+    return {"folder": folder, "frames": frames, "target": target}
 
 
 @pytest.fixture(autouse=True)
@@ -78,13 +75,18 @@ def test_a_dead_worker_is_replaced(scene, tmp_path: Path) -> None:
     assert worker_process.current_worker().alive() and second["worker"]["jobs"] == 1
 
 
-def test_worker_dying_mid_job_is_an_error_then_a_fresh_worker(scene, tmp_path: Path) -> None:
-    rec = _ext("reconstruct", _reconstruct(scene)).wait(timeout=300)
-    job = _ext("render", _render(scene, rec["arrays"], tmp_path / "a", n=400))
+def _until_a_quarter_done(job) -> None:
+    """Poll ``job`` until it reports 25 % progress (at most 2 minutes)."""
     t0 = time.monotonic()
     while job.progress < 0.25 and time.monotonic() - t0 < 120:
         job.poll()
         time.sleep(0.05)
+
+
+def test_worker_dying_mid_job_is_an_error_then_a_fresh_worker(scene, tmp_path: Path) -> None:
+    rec = _ext("reconstruct", _reconstruct(scene)).wait(timeout=300)
+    job = _ext("render", _render(scene, rec["arrays"], tmp_path / "a", n=400))
+    _until_a_quarter_done(job)
     job.worker.proc.kill()
     with pytest.raises(jobs.JobError, match="exited with code"):
         job.wait(timeout=60)
@@ -95,10 +97,7 @@ def test_worker_dying_mid_job_is_an_error_then_a_fresh_worker(scene, tmp_path: P
 def test_esc_cancels_a_served_job_and_the_worker_stays_warm(scene, tmp_path: Path) -> None:
     rec = _ext("reconstruct", _reconstruct(scene)).wait(timeout=300)
     job = _ext("render", _render(scene, rec["arrays"], tmp_path / "a", n=400))
-    t0 = time.monotonic()
-    while job.progress < 0.25 and time.monotonic() - t0 < 120:
-        job.poll()
-        time.sleep(0.05)
+    _until_a_quarter_done(job)
     job.cancel()
     with pytest.raises(jobs.JobCancelled):
         job.wait(timeout=60)

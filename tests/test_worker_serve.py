@@ -16,9 +16,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from synthetic_scenes import write_synthetic_scene
+from synthetic_scenes import worker_scene
 
-from prosplat.convert.posed import camera_to_blender_dict
 from prosplat.worker import models, paths_for, run_task, tasks, threads
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,11 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 def scene(tmp_path_factory) -> dict:
     """Render params for a 32-px demo scene (Gaussians from the shipped generator)."""
     folder = tmp_path_factory.mktemp("scene") / "s"
-    cams = write_synthetic_scene(folder, size=32, n_views=3)
-    frames = [{"name": f"{i:03d}", "image": str(folder / "images" / f"{i:03d}.png"),
-               "camera": camera_to_blender_dict(cams[i])} for i in (0, 2)]  # fmt: skip
+    frames, target_camera = worker_scene(folder)
     rec = run_task("reconstruct", {"frames": frames, "device": "cpu", "near": 0.5, "far": 10.0})
-    target = {"name": "t", "camera": camera_to_blender_dict(cams[1])}
+    target = {"name": "t", "camera": target_camera}
     return {"arrays": rec["arrays"], "targets": [target], "inputs": frames, "device": "cpu",
             "output_dir": str(folder / "renders"), "frames": frames}  # fmt: skip
 

@@ -150,6 +150,14 @@ def load_curated(path: str | Path) -> CuratedSet:
     return tensors
 
 
+def curated_alpha(data: CuratedSet, index: Tensor, device) -> Tensor | None:
+    """The renders' alpha [S,1,H,W] float32 for the samples ``index``, or None for a set
+    curated before alpha was stored."""
+    if "alpha" not in data:
+        return None
+    return data["alpha"][index].float().to(device)[:, None]
+
+
 def curated_batch(data: CuratedSet, index: Tensor, method: str, device) -> tuple[Tensor, ...]:
     """(render, reference, F, target) float32 on ``device`` for the samples ``index``."""
     if method not in METHODS:

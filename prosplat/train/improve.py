@@ -34,7 +34,7 @@ from prosplat.train.common import (
     step_indices,
     truncate_log,
 )
-from prosplat.train.curate import curated_batch, load_curated
+from prosplat.train.curate import curated_alpha, curated_batch, load_curated
 from prosplat.train.generator import lr_at
 
 
@@ -176,7 +176,7 @@ def validate_improver(model: ImproveModel, data, method: str, device, limit: int
     model.eval()
     idx = torch.arange(min(limit, data["render"].shape[0]))
     raw, ref, fund, gt = curated_batch(data, idx, method, device)
-    alpha = data["alpha"][idx].float().to(device)[:, None] if "alpha" in data else None
+    alpha = curated_alpha(data, idx, device)
     enh = torch.cat(
         [
             model(
@@ -266,7 +266,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             _, idx = step_indices(n, cfg.batch, cfg.seed, run.step, dist.rank, dist.world_size)
             index = torch.tensor(idx)
             raw, ref, fund, gt = curated_batch(data, index, cfg.reference_method, device)
-            alpha = data["alpha"][index].float().to(device)[:, None] if cfg.alpha else None
+            alpha = curated_alpha(data, index, device) if cfg.alpha else None
             if cfg.crop or cfg.flip:
                 raw, ref, fund, gt, alpha = augment_samples(
                     raw, ref, fund, gt, alpha, cfg.crop, cfg.flip, augment_rng
