@@ -86,9 +86,14 @@ def sweep(args) -> None:
     for folder in folders:
         sc = load_scene(folder)
         imgs, cams, near, far, timgs, tcams = scene_inputs(sc, args.views, args.size)
-        out = model.reconstruct_full(imgs, cams, near, far)
+        gen_imgs, gen_cams = imgs, cams
+        if args.generator_size and args.generator_size < args.size:
+            gen_imgs, gen_cams, *_ = scene_inputs(sc, args.views, args.generator_size)
+        out = model.reconstruct_full(gen_imgs, gen_cams, near, far)
         depths = out.depths[0]
-        g = prune_pixel_aligned(out.gaussians(0).detach(), depths, cams)[0]
+        g = prune_pixel_aligned(out.gaussians(0).detach(), depths, gen_cams)[0]
+        if gen_cams is not cams:
+            depths = None  # the depth term needs depth maps at the refined views' size
         for key, kw in (("pasted reference", dict(enhance=False, paste=True)),):
             for m, v in score(model, g, imgs, cams, timgs, tcams, **kw).items():
                 rows[key, False][m].append(v)
@@ -177,6 +182,12 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=None, help="at most N scenes per folder")
     ap.add_argument("--views", type=int, default=4)
     ap.add_argument("--size", type=int, default=64)
+    ap.add_argument(
+        "--generator-size",
+        type=int,
+        default=None,
+        help="run the generator at this size (below --size) and refine/render at --size",
+    )
     ap.add_argument("--steps", default="50,100,300")
     ap.add_argument("--seconds", default="", help="time budgets (s) run for each variant")
     ap.add_argument("--variants", default=None, help=f"comma-separated of {list(VARIANTS)}")

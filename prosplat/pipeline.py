@@ -324,6 +324,7 @@ class ProSplat:
         seed: int = 0,
         progress=None,
         cancel=None,
+        generator_height: int | None = None,
     ) -> Gaussians:
         """Gaussians of one scene; see :meth:`reconstruct_full`.
 
@@ -333,10 +334,12 @@ class ProSplat:
         ``refine_seconds=S`` (not both): :meth:`reconstruct_refined`'s Gaussians, pruned to
         ``budget`` (automatic when None) and then fitted to the inputs (no longer
         pixel-aligned, so prune before, never after). ``budget``, ``refine_options``, ``seed``,
-        ``progress`` and ``cancel`` only matter with refinement.
+        ``progress`` and ``cancel`` only matter with refinement. ``generator_height``: run the
+        generator on the inputs resized to this height (see :meth:`generator_views`).
         """
         if not refine_steps and not refine_seconds:
-            return self.reconstruct_full(images, cameras, near, far, grad=grad).gaussians(0)
+            gen_images, gen_cameras = self.generator_views(images, cameras, generator_height)
+            return self.reconstruct_full(gen_images, gen_cameras, near, far, grad=grad).gaussians(0)
         return self.reconstruct_refined(
             images,
             cameras,
@@ -349,7 +352,28 @@ class ProSplat:
             seed=seed,
             progress=progress,
             cancel=cancel,
+            generator_height=generator_height,
         ).gaussians
+
+    def generator_views(
+        self, images: Tensor, cameras: Sequence[Camera], height: int | None
+    ) -> tuple[Tensor, list[Camera]]:
+        """The inputs as the generator should see them: resized (antialiased) to ``height``
+        px when that is below their own height, the width keeping the aspect (a multiple of
+        32), with matching cameras; unchanged otherwise.
+
+        Why: a generator works best at the size it was trained at (``TRAINED_SIZE`` for the
+        shipped weights), and its Gaussians do not depend on the size they were made at, so
+        they render at any camera's size and refine against the full-size inputs. The shipped
+        generator run at 64 px and rendered at 128 px scores 15.93 dB on the test scenes
+        against 15.32 dB when it runs at 128 px (BENCHMARKS.md, "Generator size").
+        """
+        cameras = list(cameras)
+        if height is None or height >= images.shape[-2]:
+            return images, cameras
+        from prosplat.data.scene import resize_views
+
+        return resize_views(images, cameras, int(height))
 
     def reconstruct_refined(
         self,
@@ -365,6 +389,7 @@ class ProSplat:
         seed: int = 0,
         progress=None,
         cancel=None,
+        generator_height: int | None = None,
     ):
         """Generator, Gaussian budget, then :func:`prosplat.refine.refine` against the inputs.
 
@@ -372,7 +397,9 @@ class ProSplat:
         for the automatic budget), so refinement fits only Gaussians that will be kept and
         keeps their count; the generator's per-view depth feeds the optional depth term.
         Exactly one of ``steps`` / ``seconds``; ``progress(step, total, loss)`` and
-        ``cancel()`` as in :func:`~prosplat.refine.refine`.
+        ``cancel()`` as in :func:`~prosplat.refine.refine`. ``generator_height``: the generator
+        runs on the inputs resized to this height (:meth:`generator_views`) and refinement fits
+        the full-size ``images``; the depth term is then off (its maps are the generator's size).
 
         Returns:
             :class:`prosplat.refine.RefineResult` (``gaussians``, ``stats``); ``stats`` also
@@ -389,12 +416,15 @@ class ProSplat:
                 "give refine_steps or refine_seconds, not both (a step count or a time budget)"
             )
         t0 = time.perf_counter()
-        out = self.reconstruct_full(images, cameras, near, far)
+        cameras = list(cameras)
+        gen_images, gen_cameras = self.generator_views(images, cameras, generator_height)
+        out = self.reconstruct_full(gen_images, gen_cameras, near, far)
         t1 = time.perf_counter()
         g, depths = out.gaussians(0).detach(), out.depths[0].detach()
-        cameras = list(cameras)
-        pruned, _, _ = prune_pixel_aligned(g, depths, cameras, budget=budget)
+        pruned, _, _ = prune_pixel_aligned(g, depths, gen_cameras, budget=budget)
         t2 = time.perf_counter()
+        if gen_images is not images:
+            depths = None  # the depth term needs maps at the refined images' size
         result = refine(
             pruned,
             images.to(g.means.device),

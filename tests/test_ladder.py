@@ -355,6 +355,9 @@ def test_eval_ladder_end_to_end(data, tmp_path, capsys):
         (["--rows", "nope"], "unknown ladder rows"),
         (["--sizes", "128"], "cannot evaluate at 128 px"),
         (["--views", "5"], "has 4 input views, cannot evaluate 5"),
+        (["--refine-steps", "0"], "--refine-steps: [0] must be >= 1"),
+        (["--refine-seconds", "0"], "--refine-seconds: [0.0] must be > 0"),
+        (["--generator-size", "48"], "--generator-size 48 is not a multiple of 32"),
     ],
 )
 def test_eval_ladder_bad_options_exit_2(data, tmp_path, capsys, extra, message):
@@ -364,6 +367,29 @@ def test_eval_ladder_bad_options_exit_2(data, tmp_path, capsys, extra, message):
     assert done.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_refine_rows_fit_the_inputs_from_a_smaller_generator_run(data):
+    """``--generator-size 32`` on 64-px views: the generator sees 32-px inputs (a quarter of
+    the Gaussians), its Gaussians render at 64 px, and the refine rows fit them to the
+    64-px inputs, keeping their count and getting closer to the inputs."""
+    ctx = LadderContext({"generator_size": 32, "refine_steps": [30], "improve": False})
+    rungs = {r.name: r for r in build_rungs(["generator", "refine"], ctx)}
+    assert list(rungs) == ["generator", "refine 30"]  # no improvement model: no enhanced row
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    torch.manual_seed(0)
+    g = rungs["generator"].reconstruct(inp)
+    fitted = rungs["refine 30"].reconstruct(inp)
+    assert 0 < len(fitted) == len(g) <= 3 * 32 * 32
+    before = [float(psnr(render(g, c).rgb, im)) for c, im in zip(inp.cameras, inp.images)]
+    after = [float(psnr(render(fitted, c).rgb, im)) for c, im in zip(inp.cameras, inp.images)]
+    assert render(g, inp.cameras[0]).rgb.shape[-2:] == (64, 64)
+    assert sum(after) / 3 > sum(before) / 3 + 0.5
+    messages = []
+    assert build_rungs(["refine"], LadderContext(), log=messages.append) == []
+    assert "--refine-steps" in messages[0]
 
 
 def test_demo_report_scores_the_same_ladder(data):

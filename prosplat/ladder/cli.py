@@ -16,7 +16,9 @@ import time
 from pathlib import Path
 
 #: the rows run by default (per-scene optimisation joins when --opt-steps is given)
-DEFAULT_ROWS = ("flat", "paste", "optimize", "generator", "enhanced", "true-depth", "depthsplat")
+DEFAULT_ROWS = (
+    "flat", "paste", "optimize", "generator", "enhanced", "refine", "true-depth", "depthsplat",
+)  # fmt: skip
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +32,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"ladder rows to run, from {', '.join(DEFAULT_ROWS)} (default all)")  # fmt: skip
     parser.add_argument("--opt-steps", type=int, nargs="*", default=[],
                         help="per-scene optimisation step counts, e.g. 300 1000 (slow; default none)")  # fmt: skip
+    parser.add_argument("--refine-steps", type=int, nargs="*", default=[],
+                        help="refinement step counts, e.g. 100 300: rows 'refine N' (+ enhanced)")  # fmt: skip
+    parser.add_argument("--refine-seconds", type=float, nargs="*", default=[],
+                        help="refinement time budgets in seconds, e.g. 10: rows 'refine S s'")  # fmt: skip
     parser.add_argument("--generator", default=None, help="generator checkpoint (default shipped)")
+    parser.add_argument("--generator-size", type=int, default=None,
+                        help="run the generator at most this high (px, a multiple of 32; default: "
+                        "the evaluation size); its Gaussians render at the evaluation size")  # fmt: skip
     parser.add_argument("--improve", default=None,
                         help="improvement-model checkpoint (default shipped)")  # fmt: skip
     parser.add_argument("--depthsplat", default=None, help="DepthSplat checkpoint (optional row)")
@@ -52,6 +61,12 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--views: {bad} outside 2-6 input views")
     if bad := [s for s in args.opt_steps if s < 1]:
         raise ValueError(f"--opt-steps: {bad} must be >= 1")
+    if bad := [s for s in args.refine_steps if s < 1]:
+        raise ValueError(f"--refine-steps: {bad} must be >= 1")
+    if bad := [s for s in args.refine_seconds if not s > 0]:
+        raise ValueError(f"--refine-seconds: {bad} must be > 0")
+    if args.generator_size is not None and (args.generator_size < 32 or args.generator_size % 32):
+        raise ValueError(f"--generator-size {args.generator_size} is not a multiple of 32")
     if args.budget is not None and not args.budget > 0:
         raise ValueError(f"--budget must be a count or a fraction in (0, 1], got {args.budget}")
 
@@ -88,11 +103,12 @@ def command(args: argparse.Namespace) -> str:
     parts += ["--sizes", *map(str, args.sizes), "--views", *map(str, args.views)]
     if list(args.rows) != list(DEFAULT_ROWS):
         parts += ["--rows", *args.rows]
-    if args.opt_steps:
-        parts += ["--opt-steps", *map(str, args.opt_steps)]
-    for flag in ("generator", "improve", "depthsplat", "budget", "scenes"):
+    for flag in ("opt_steps", "refine_steps", "refine_seconds"):
+        if getattr(args, flag):
+            parts += [f"--{flag.replace('_', '-')}", *(f"{v:g}" for v in getattr(args, flag))]
+    for flag in ("generator", "generator_size", "improve", "depthsplat", "budget", "scenes"):
         if getattr(args, flag) is not None:
-            parts += [f"--{flag}", str(getattr(args, flag))]
+            parts += [f"--{flag.replace('_', '-')}", str(getattr(args, flag))]
     if args.bf16:
         parts.append("--bf16")
     if args.resample != "targets":

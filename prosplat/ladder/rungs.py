@@ -222,12 +222,18 @@ def optimize_rungs(ctx: LadderContext) -> list[Rung]:
 
 
 def _generator_gaussians(ctx: LadderContext) -> Callable[[SceneInputs], Any]:
+    """The generator's Gaussians, run at ``generator_size`` px when the evaluation size is
+    larger (``--generator-size``), pruned by the budget."""
     from prosplat.budget import prune_pixel_aligned
 
     def reconstruct(inp: SceneInputs):
-        out = ctx.model.reconstruct_full(inp.images, inp.cameras, inp.near, inp.far)
+        model = ctx.model
+        images, cameras = model.generator_views(
+            inp.images, inp.cameras, ctx.options.get("generator_size")
+        )
+        out = model.reconstruct_full(images, cameras, inp.near, inp.far)
         g, depths = out.gaussians(0), out.depths[0]
-        return prune_pixel_aligned(g, depths, inp.cameras, budget=ctx.options.get("budget"))[0]
+        return prune_pixel_aligned(g, depths, cameras, budget=ctx.options.get("budget"))[0]
 
     return reconstruct
 
@@ -247,6 +253,42 @@ def enhanced_rungs(ctx: LadderContext) -> list[Rung]:
         return splat_view(g, cam, inp, improver, dtype)
 
     return [Rung("enhanced", _generator_gaussians(ctx), view, "generator", depth=True)]
+
+
+@register("refine")
+def refine_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's Gaussians refined against the inputs (:mod:`prosplat.refine`, shipped
+    options) for each ``--refine-steps`` count and ``--refine-seconds`` budget, raw and (with
+    an improvement model) enhanced; the refinement is timed as the reconstruction."""
+    steps = [int(n) for n in ctx.options.get("refine_steps") or []]
+    seconds = [float(s) for s in ctx.options.get("refine_seconds") or []]
+    if not steps and not seconds:
+        raise SkipRung(
+            "no refinement asked for; pass --refine-steps 100 300 or --refine-seconds 10"
+        )
+    try:
+        improver, dtype = ctx.improver("refine enhanced"), _dtype(ctx)
+    except SkipRung:
+        improver = dtype = None
+
+    def make(label: str, n: int | None, sec: float | None) -> list[Rung]:
+        def reconstruct(inp: SceneInputs):
+            return ctx.model.reconstruct_refined(
+                inp.images, inp.cameras, inp.near, inp.far, steps=n, seconds=sec,
+                budget=ctx.options.get("budget"),
+                generator_height=ctx.options.get("generator_size"),
+            ).gaussians  # fmt: skip
+
+        def enhanced(g, cam: Camera, inp: SceneInputs) -> View:
+            return splat_view(g, cam, inp, improver, dtype)
+
+        raw = Rung(label, reconstruct, splat_view, label, depth=True, warmup=False)
+        if improver is None:
+            return [raw]
+        return [raw, Rung(f"{label} enhanced", reconstruct, enhanced, label, depth=True)]
+
+    rungs = [r for n in steps for r in make(f"refine {n}", n, None)]
+    return rungs + [r for sec in seconds for r in make(f"refine {sec:g} s", None, sec)]
 
 
 def _true_depth(inp: SceneInputs):
