@@ -43,7 +43,7 @@ def cmd_curate(args: argparse.Namespace) -> int:
         return 2
     path = curate(
         model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd,
-        refine_steps=args.refine_steps, height=args.size,
+        refine_steps=args.refine_steps, height=args.size, generator_height=args.generator_size,
     )  # fmt: skip
     print(f"curated set: {path.resolve()}")
     return 0
@@ -135,6 +135,13 @@ def add_train_parsers(train_sub) -> None:
         default=None,
         help="resize the views to this height first (e.g. 64 from 128-px scenes; default: as "
         "rendered)",
+    )
+    cu.add_argument(
+        "--generator-size",
+        type=int,
+        default=None,
+        help="run the generator at this height when the views are larger (e.g. 64, as the "
+        "pipeline runs the shipped weights) and render at the views' size",
     )
     cu.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     cu.set_defaults(func=cmd_curate)

@@ -219,3 +219,36 @@ def test_curation_stores_alpha_and_resizes(setup, tmp_path) -> None:
         tmp_path / "big.safetensors", views=(2,), progress=False, height=64,
     )  # fmt: skip
     assert load_curated(big)["render"].shape[-2:] == (64, 64)
+
+
+def test_curation_at_a_smaller_generator_size_and_training_on_two_sizes(setup, tmp_path) -> None:
+    """``generator_height``: the generator runs at 32 px and its Gaussians render at the
+    64-px views (as the pipeline runs the shipped weights on larger cameras); training takes
+    its batches from a 32-px and a 64-px set in turn, and records the larger as its working
+    size."""
+    root, gen_path, curated = setup
+    model = ProSplat.from_pretrained(gen_path, improve=False)
+    torch.manual_seed(0)
+    big = curate(
+        model, root / "scenes", tmp_path / "big.safetensors", views=(2,), progress=False,
+        height=64, generator_height=32,
+    )  # fmt: skip
+    data = load_curated(big)
+    assert data["render"].shape[-2:] == (64, 64)
+    # the renders are the 32-px generator's Gaussians seen at 64 px: fewer, larger splats
+    # than the 64-px run's, so the two sets differ
+    same = curate(
+        model, root / "scenes", tmp_path / "same.safetensors", views=(2,), progress=False,
+        height=64,
+    )  # fmt: skip
+    diff = (load_curated(same)["render"].float() - data["render"].float()).abs().mean()
+    assert float(diff) > 1e-3
+    cfg = ImproveTrainConfig(data=f"{curated},{big}", out=str(tmp_path / "two"), steps=2,
+                             batch=2, lpips_weight=0.0, crop=16, alpha=True, device="cpu")  # fmt: skip
+    assert (
+        load_improver(train_improve(cfg, progress=False, model_config=SMALL)).config.working_size
+        == 64
+    )
+    bad = ImproveTrainConfig(**{**cfg.__dict__, "crop": 48, "out": str(tmp_path / "bad")})
+    with pytest.raises(ValueError, match="larger than the smallest curated views"):
+        train_improve(bad, progress=False, model_config=SMALL)

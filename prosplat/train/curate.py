@@ -37,12 +37,19 @@ CuratedSet = dict[str, Tensor]
 
 
 def curate_scene(
-    model, scene, views: Sequence[int], refine_steps: int = 0, seed: int = 0
+    model,
+    scene,
+    views: Sequence[int],
+    refine_steps: int = 0,
+    seed: int = 0,
+    generator_height: int | None = None,
 ) -> dict[str, list[Tensor]]:
     """Samples of one scene for each input-view count in ``views`` (counts above the scene's
     input views are skipped). ``refine_steps > 0`` renders the refined scene instead (the
     generator's Gaussians pruned to the automatic budget, then :func:`prosplat.refine.refine`
-    for that many steps with its default options), so stage 2 can learn refined renders."""
+    for that many steps with its default options), so stage 2 can learn refined renders.
+    ``generator_height``: the generator runs on the inputs resized to this height
+    (:meth:`ProSplat.generator_views`), as the pipeline runs it on larger cameras."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -54,11 +61,14 @@ def curate_scene(
         idx = pick_inputs(scene, n)
         cams = [scene.cameras[i] for i in idx]
         near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
-        full = model.reconstruct_full(scene.images[idx], cams, near, far)
+        gen_images, gen_cams = model.generator_views(scene.images[idx], cams, generator_height)
+        full = model.reconstruct_full(gen_images, gen_cams, near, far)
         gaussians = full.gaussians(0)
-        input_depths = full.depths[0]  # [N,H,W] the generator's depth per input view
+        gen_depths = full.depths[0]  # [N,h,w] the generator's depth per input view
+        same_size = gen_images is scene.images[idx] or gen_images.shape == scene.images[idx].shape
+        input_depths = gen_depths if same_size else None  # MORI's overlap needs input-size maps
         if refine_steps:
-            gaussians = prune_pixel_aligned(gaussians.detach(), input_depths, cams)[0]
+            gaussians = prune_pixel_aligned(gaussians.detach(), gen_depths, gen_cams)[0]
             gaussians = refine(
                 gaussians, scene.images[idx], cams, steps=refine_steps, seed=seed,
                 depths=input_depths,
@@ -91,11 +101,13 @@ def curate(
     command: str = "",
     refine_steps: int = 0,
     height: int | None = None,
+    generator_height: int | None = None,
 ) -> Path:
     """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
     ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`); ``height``:
     views resized to this height first (antialiased, as the ladder evaluates), so one set of
-    128-px scenes serves a 64-px model."""
+    128-px scenes serves a 64-px model; ``generator_height``: the generator runs at this
+    height when the views are larger (see :func:`curate_scene`)."""
     if int(refine_steps) != refine_steps or refine_steps < 0:
         raise ValueError(f"refine_steps must be an integer >= 0 (0: off), got {refine_steps}")
     from tqdm import tqdm
@@ -120,7 +132,10 @@ def curate(
                 "one image size per file"
             )
         size = hw
-        part = curate_scene(model, scene, views, refine_steps=refine_steps, seed=s)
+        part = curate_scene(
+            model, scene, views, refine_steps=refine_steps, seed=s,
+            generator_height=generator_height,
+        )  # fmt: skip
         for k, v in part.items():
             cols.setdefault(k, []).extend(v)
         cols.setdefault("scene", []).extend([torch.tensor(s)] * len(part.get("render", [])))
@@ -135,6 +150,7 @@ def curate(
         "views": json.dumps(list(views)),
         "refine_steps": str(int(refine_steps)),
         "height": str(height or ""),
+        "generator_height": str(generator_height or ""),
         "command": command,
     }
     return write_checkpoint(tensors, out, meta, overwrite)

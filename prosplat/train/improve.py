@@ -42,7 +42,9 @@ from prosplat.train.generator import lr_at
 class ImproveTrainConfig:
     """An independent stage-2 run; saved beside its checkpoints as ``train_config.json``."""
 
-    data: str  # curated file (prosplat train curate)
+    # curated file (prosplat train curate), or several joined by commas (e.g. one per size):
+    # each step takes its batch from one of them in turn
+    data: str
     out: str
     config: str = "tiny"
     init: str | None = None  # start from this improvement checkpoint instead of random
@@ -167,6 +169,14 @@ class _Run:
         self.dist.barrier()
 
 
+def load_curated_sets(spec: str) -> list:
+    """The curated sets of ``--data``: one path, or several joined by commas."""
+    paths = [p.strip() for p in str(spec).split(",") if p.strip()]
+    if not paths:
+        raise ValueError("--data needs a curated file (prosplat train curate)")
+    return [load_curated(p) for p in paths]
+
+
 @torch.no_grad()
 def validate_improver(model: ImproveModel, data, method: str, device, limit: int = 64) -> dict:
     """Mean PSNR of raw renders and of enhanced ones on the first ``limit`` curated samples."""
@@ -238,20 +248,23 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             )
         )
     model.to(device).train()
-    data = load_curated(cfg.data)
-    if cfg.alpha and "alpha" not in data:
+    sets = load_curated_sets(cfg.data)
+    if cfg.alpha and any("alpha" not in data for data in sets):
         raise ValueError(
-            f"--alpha needs a curated set with the renders' alpha; {cfg.data} has none "
+            f"--alpha needs curated sets with the renders' alpha; one of {cfg.data} has none "
             "(curate it again with this version of `prosplat train curate`)"
         )
     if cfg.crop and cfg.crop % model.config.size_multiple:
         raise ValueError(
             f"--crop must be a multiple of {model.config.size_multiple}, got {cfg.crop}"
         )
+    if cfg.crop and (small := min(min(d["render"].shape[-2:]) for d in sets)) < cfg.crop:
+        raise ValueError(f"--crop {cfg.crop} is larger than the smallest curated views ({small})")
     if cfg.padding:
         model.set_padding(cfg.padding)
     # the views' size, not the crops': the model learns textures at the scale of whole views
-    model.config = model.config.with_(working_size=max(data["render"].shape[-2:]))
+    size = max(max(d["render"].shape[-2:]) for d in sets)
+    model.config = model.config.with_(working_size=size)
     augment_rng = torch.Generator().manual_seed(cfg.seed + 1)
     val = load_curated(cfg.val) if cfg.val and dist.is_main else None
     params = [p for p in model.parameters() if p.requires_grad]
@@ -260,10 +273,12 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         model.load_state_dict(run.resumed.weights)
     net = dist.wrap(model)
     lpips_fn = LPIPS().to(device) if cfg.lpips_weight > 0 else None
-    n = data["render"].shape[0]
     try:
         while run.step < cfg.steps:
-            _, idx = step_indices(n, cfg.batch, cfg.seed, run.step, dist.rank, dist.world_size)
+            data = sets[run.step % len(sets)]  # one set per step: a batch has one view size
+            n = data["render"].shape[0]
+            step = run.step // len(sets)  # each set walks its own shuffled epochs
+            _, idx = step_indices(n, cfg.batch, cfg.seed, step, dist.rank, dist.world_size)
             index = torch.tensor(idx)
             raw, ref, fund, gt = curated_batch(data, index, cfg.reference_method, device)
             alpha = curated_alpha(data, index, device) if cfg.alpha else None
