@@ -140,8 +140,9 @@ def add_train_parsers(train_sub) -> None:
         "--generator-size",
         type=int,
         default=None,
-        help="run the generator at this height when the views are larger (e.g. 64, as the "
-        "pipeline runs the shipped weights) and render at the views' size",
+        help="run the generator at most this high and render at the views' size (default: "
+        "the weights' trained size, 64 for the shipped ones, as the pipeline runs it; 0: the "
+        "views' size)",
     )
     cu.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     cu.set_defaults(func=cmd_curate)

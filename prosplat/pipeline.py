@@ -145,11 +145,19 @@ class ProSplat:
 
     ``ProSplat(config)`` builds a randomly initialised generator (seed torch first for a
     reproducible one) and no improvement model; :meth:`from_pretrained` loads weights.
-    ``model.improver`` is the stage-2 :class:`~prosplat.improve.ImproveModel` or None.
+    ``model.improver`` is the stage-2 :class:`~prosplat.improve.ImproveModel` or None;
+    ``model.trained_size`` the height the generator was trained at (``TRAINED_SIZE`` for the
+    shipped weights; a file's ``trained_size`` metadata; else None), at most which
+    :meth:`reconstruct` runs it.
     """
 
     def __init__(
-        self, config: GeneratorConfig | None = None, device=None, improver=None, generator=None
+        self,
+        config: GeneratorConfig | None = None,
+        device=None,
+        improver=None,
+        generator=None,
+        trained_size: int | None = None,
     ) -> None:
         if (
             generator is not None
@@ -160,6 +168,9 @@ class ProSplat:
             self.config = TINY if config is None else config
             self.generator = Generator(self.config).to(device if device is not None else "cpu")
         self.generator.eval()
+        #: the image height the generator was trained at (None: unknown); the pipeline runs
+        #: the generator at most this high (:meth:`generator_views`)
+        self.trained_size = trained_size
         self.improver = improver
         if improver is not None:
             improver.to(self.device).eval()
@@ -232,7 +243,15 @@ class ProSplat:
                 f"{path} was saved with a different generator config than the one passed; drop config= "
                 f"to use the file's ({stored.to_json()})"
             )
-        model = cls(stored or config, device="cpu", improver=_load_improver(improve))
+        trained = meta.get("trained_size")
+        if path.resolve() == DEFAULT_WEIGHTS.resolve():
+            trained = TRAINED_SIZE
+        model = cls(
+            stored or config,
+            device="cpu",
+            improver=_load_improver(improve),
+            trained_size=int(trained) if trained else None,
+        )
         try:
             model.generator.load_state_dict(state, strict=True)
         except RuntimeError as e:
@@ -253,6 +272,8 @@ class ProSplat:
             "config": self.config.to_json(),
             "parameters": json.dumps(self.generator.num_parameters()),
         }
+        if self.trained_size:
+            meta["trained_size"] = str(int(self.trained_size))
         return write_checkpoint(self.generator.state_dict(), path, meta, overwrite)
 
     # ---- inference --------------------------------------------------------------------------
@@ -334,8 +355,9 @@ class ProSplat:
         ``refine_seconds=S`` (not both): :meth:`reconstruct_refined`'s Gaussians, pruned to
         ``budget`` (automatic when None) and then fitted to the inputs (no longer
         pixel-aligned, so prune before, never after). ``budget``, ``refine_options``, ``seed``,
-        ``progress`` and ``cancel`` only matter with refinement. ``generator_height``: run the
-        generator on the inputs resized to this height (see :meth:`generator_views`).
+        ``progress`` and ``cancel`` only matter with refinement. ``generator_height``: the
+        generator runs at most this high (:meth:`generator_views`; None: :attr:`trained_size`,
+        0: the inputs' size).
         """
         if not refine_steps and not refine_seconds:
             gen_images, gen_cameras = self.generator_views(images, cameras, generator_height)
@@ -356,11 +378,12 @@ class ProSplat:
         ).gaussians
 
     def generator_views(
-        self, images: Tensor, cameras: Sequence[Camera], height: int | None
+        self, images: Tensor, cameras: Sequence[Camera], height: int | None = None
     ) -> tuple[Tensor, list[Camera]]:
         """The inputs as the generator should see them: resized (antialiased) to ``height``
         px when that is below their own height, the width keeping the aspect (a multiple of
-        32), with matching cameras; unchanged otherwise.
+        32), with matching cameras; unchanged otherwise. ``height`` None: the model's
+        :attr:`trained_size`; 0: the inputs' own size.
 
         Why: a generator works best at the size it was trained at (``TRAINED_SIZE`` for the
         shipped weights), and its Gaussians do not depend on the size they were made at, so
@@ -369,7 +392,8 @@ class ProSplat:
         against 15.32 dB when it runs at 128 px (BENCHMARKS.md, "Generator size").
         """
         cameras = list(cameras)
-        if height is None or height >= images.shape[-2]:
+        height = self.trained_size if height is None else height
+        if not height or height >= images.shape[-2]:
             return images, cameras
         from prosplat.data.scene import resize_views
 
@@ -398,8 +422,9 @@ class ProSplat:
         keeps their count; the generator's per-view depth feeds the optional depth term.
         Exactly one of ``steps`` / ``seconds``; ``progress(step, total, loss)`` and
         ``cancel()`` as in :func:`~prosplat.refine.refine`. ``generator_height``: the generator
-        runs on the inputs resized to this height (:meth:`generator_views`) and refinement fits
-        the full-size ``images``; the depth term is then off (its maps are the generator's size).
+        runs at most this high (:meth:`generator_views`; None: :attr:`trained_size`, 0: the
+        inputs' size) and refinement fits the full-size ``images``; the depth term is then off
+        (its maps are the generator's size).
 
         Returns:
             :class:`prosplat.refine.RefineResult` (``gaussians``, ``stats``); ``stats`` also

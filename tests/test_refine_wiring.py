@@ -52,6 +52,38 @@ def test_reconstruct_refines_the_pruned_gaussians(scene, model):
     assert len(model.reconstruct(images, cams, near, far, refine_seconds=0)) == len(raw)  # off
 
 
+def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
+    model, tmp_path_factory
+):
+    """The shipped weights were trained at 64 px: given 128-px inputs, the pipeline runs the
+    generator on them resized to 64 px (a quarter of the Gaussians), the Gaussians render at
+    128 px, and refinement fits the 128-px inputs. ``generator_height=0`` runs it at the
+    inputs' size; a saved model keeps its trained size."""
+    folder = tmp_path_factory.mktemp("big") / "scene_b"
+    write_synthetic_scene(folder, size=128, n_views=5)
+    big = load_scene(folder)
+    images, cams, near, far = scene_inputs(big)
+    assert model.trained_size == 64
+    small, small_cams = model.generator_views(images, cams)
+    assert small.shape[-2:] == (64, 64) and (small_cams[0].width, small_cams[0].height) == (64, 64)
+    assert torch.equal(small_cams[0].center, cams[0].center)  # same camera, scaled intrinsics
+    assert len(model.reconstruct(images, cams, near, far)) == 3 * 64 * 64
+    assert len(model.reconstruct(images, cams, near, far, generator_height=0)) == 3 * 128 * 128
+    res = model.reconstruct_refined(images, cams, near, far, steps=3)
+    assert res.stats.pruned_from == 3 * 64 * 64
+    from prosplat.render import render
+
+    assert render(res.gaussians, cams[0]).rgb.shape[-2:] == (128, 128)
+    # inputs already at or below the trained size are left as they are
+    same, _ = model.generator_views(small, small_cams)
+    assert same is small
+    path = ProSplat(model.config, trained_size=96).save(
+        tmp_path_factory.mktemp("w") / "g.safetensors"
+    )
+    assert ProSplat.from_pretrained(path, improve=False).trained_size == 96
+    assert ProSplat(model.config).trained_size is None
+
+
 def test_reconstruct_refusals_name_the_fix(scene, model):
     images, cams, near, far = scene_inputs(scene)
     with pytest.raises(ValueError, match="not both"):

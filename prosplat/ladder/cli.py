@@ -39,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--generator", default=None, help="generator checkpoint (default shipped)")
     parser.add_argument("--generator-size", type=int, default=None,
                         help="run the generator at most this high (px, a multiple of 32; default: "
-                        "the evaluation size); its Gaussians render at the evaluation size")  # fmt: skip
+                        "the size its weights were trained at, 64 for the shipped ones; 0: the "
+                        "evaluation size); its Gaussians render at the evaluation size")  # fmt: skip
     parser.add_argument("--improve", default=None,
                         help="improvement-model checkpoint (default shipped)")  # fmt: skip
     parser.add_argument("--depthsplat", default=None, help="DepthSplat checkpoint (optional row)")
@@ -65,7 +66,7 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--refine-steps: {bad} must be >= 1")
     if bad := [s for s in args.refine_seconds if not s > 0]:
         raise ValueError(f"--refine-seconds: {bad} must be > 0")
-    if args.generator_size is not None and (args.generator_size < 32 or args.generator_size % 32):
+    if args.generator_size and (args.generator_size < 32 or args.generator_size % 32):
         raise ValueError(f"--generator-size {args.generator_size} is not a multiple of 32")
     if args.budget is not None and not args.budget > 0:
         raise ValueError(f"--budget must be a count or a fraction in (0, 1], got {args.budget}")

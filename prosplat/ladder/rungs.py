@@ -222,8 +222,9 @@ def optimize_rungs(ctx: LadderContext) -> list[Rung]:
 
 
 def _generator_gaussians(ctx: LadderContext) -> Callable[[SceneInputs], Any]:
-    """The generator's Gaussians, run at ``generator_size`` px when the evaluation size is
-    larger (``--generator-size``), pruned by the budget."""
+    """The generator's Gaussians as the pipeline makes them: run at most ``generator_size``
+    px high (``--generator-size``; default the weights' trained size, 0 the evaluation
+    size), pruned by the budget; they render at the evaluation size."""
     from prosplat.budget import prune_pixel_aligned
 
     def reconstruct(inp: SceneInputs):

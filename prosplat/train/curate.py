@@ -48,8 +48,8 @@ def curate_scene(
     input views are skipped). ``refine_steps > 0`` renders the refined scene instead (the
     generator's Gaussians pruned to the automatic budget, then :func:`prosplat.refine.refine`
     for that many steps with its default options), so stage 2 can learn refined renders.
-    ``generator_height``: the generator runs on the inputs resized to this height
-    (:meth:`ProSplat.generator_views`), as the pipeline runs it on larger cameras."""
+    ``generator_height``: the generator runs at most this high, as the pipeline runs it
+    (:meth:`ProSplat.generator_views`; None: the weights' trained size, 0: the views' size)."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -106,8 +106,7 @@ def curate(
     """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
     ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`); ``height``:
     views resized to this height first (antialiased, as the ladder evaluates), so one set of
-    128-px scenes serves a 64-px model; ``generator_height``: the generator runs at this
-    height when the views are larger (see :func:`curate_scene`)."""
+    128-px scenes serves a 64-px model; ``generator_height``: see :func:`curate_scene`."""
     if int(refine_steps) != refine_steps or refine_steps < 0:
         raise ValueError(f"refine_steps must be an integer >= 0 (0: off), got {refine_steps}")
     from tqdm import tqdm

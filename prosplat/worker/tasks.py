@@ -184,19 +184,26 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     if (w, h) != (cameras[0].width, cameras[0].height):
         images = torch.stack([_resize(im, w, h) for im in images])
         cameras = [c.resized(w, h) for c in cameras]
-    progress(0.35, f"running the generator on {len(cameras)} views at {w}x{h}")
+    # the generator runs at the size its weights were trained at (its Gaussians render at any
+    # size); refinement and the references use the inputs at the Input Size
+    gen_images, gen_cameras = model.generator_views(images, cameras)
+    gw, gh = gen_cameras[0].width, gen_cameras[0].height
+    progress(0.35, f"running the generator on {len(cameras)} views at {gw}x{gh}")
     t1 = time.perf_counter()
-    out = model.reconstruct_full(images.to(device), cameras, params.get("near"), params.get("far"))
+    out = model.reconstruct_full(
+        gen_images.to(device), gen_cameras, params.get("near"), params.get("far")
+    )
     t_gen = time.perf_counter() - t1
     progress(0.8, "pruning to the Gaussian budget")
     g = out.gaussians(0).detach().to("cpu")
     budget = params.get("budget") or None
-    g, _, stats = prune_pixel_aligned(g, out.depths[0].cpu(), cameras, budget=budget)
+    g, _, stats = prune_pixel_aligned(g, out.depths[0].cpu(), gen_cameras, budget=budget)
     if len(g) == 0:
         raise ValueError("the generator produced no visible Gaussians for these views")
     t_refine = 0.0
     if params.get("refine_steps") or params.get("refine_seconds"):
-        g, t_refine = _refine(params, g, images, cameras, out.depths[0].cpu(), progress)
+        depths = out.depths[0].cpu() if (gw, gh) == (w, h) else None
+        g, t_refine = _refine(params, g, images, cameras, depths, progress)
     if params.get("ply"):
         from prosplat.ply import write_ply
 
@@ -205,6 +212,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     stats = {k: int(v) for k, v in stats.items()}
     return {
         "count": len(g), "sh_degree": g.sh_degree, "stats": stats, "size": [w, h],
+        "generator_size": [gw, gh],
         "seconds": {"generator": t_gen, "refine": t_refine, "total": time.perf_counter() - t0},
         "arrays": to_attributes(g), "views": [f.get("name") for f in frames], "view_reason": views,
     }  # fmt: skip

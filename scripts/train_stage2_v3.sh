@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Stage 2 v3 on the CPU: fine-tune improvement model v1 on what the pipeline now renders: the
+# shipped generator run at 64 px (its trained size) and its Gaussians seen at 64 and 128 px,
+# raw and refined (prosplat.refine, 300 steps against the inputs at the views' size). v2's
+# recipe (replicate padding, alpha input, 48-px crops, flips, LPIPS weight 0.1); batches come
+# from the four curated sets in turn. Resumable: finished curated sets are kept, and re-running
+# continues the run in runs/s2v3/run.
+#   scripts/train_stage2_v3.sh [STEPS]   (default 3000; INIT= another starting file)
+# Data: data/train128 (scripts/render_v2_data.sh train 2) and data/val128 (... eval).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+P=${PROSPLAT:-.venv/bin/prosplat}
+OUT=runs/s2v3
+mkdir -p $OUT
+curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
+  [ -f $OUT/$1.safetensors ] || $P train curate --data $2 --out $OUT/$1.safetensors --views $3 \
+    --size $4 --generator-size 64 --refine-steps $5
+}
+curate raw64 data/train128 2,3,4,6 64 0 &
+curate ref128 data/train128 2,4 128 300
+wait
+curate raw128 data/train128 2,4 128 0 &
+curate ref64 data/train128 2,4 64 300
+wait
+curate val_ref128 data/val128 4 128 300 &
+curate val_raw64 data/val128 2,4 64 0
+wait
+$P train improve --data $OUT/raw64.safetensors,$OUT/ref64.safetensors,$OUT/raw128.safetensors,$OUT/ref128.safetensors \
+  --val $OUT/val_ref128.safetensors --out $OUT/run \
+  --init "${INIT:-prosplat/weights/improve_tiny.safetensors}" --padding replicate --alpha --crop 48 \
+  --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 50 --lpips-weight 0.1 \
+  --val-every 500 --save-every 100 --log-every 20
