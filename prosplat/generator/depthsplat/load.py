@@ -41,6 +41,25 @@ def _one_line(text: str, limit: int = 300) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+STRIP_HINT = (
+    "Checkpoints are read with torch.load(weights_only=True), which runs no code from the file; "
+    "a full training checkpoint that holds Python objects can be cut to its weights (only if "
+    "you trust it) with: python -c \"import torch; torch.save({'state_dict': torch.load('IN', "
+    "weights_only=False)['state_dict']}, 'OUT.pth')\""
+)
+
+
+def _unpickling_reason(e: Exception) -> str:
+    """The specific part of torch's weights-only error ("Unsupported operand 110", "Unsupported
+    global: GLOBAL x.Y ..."), without its advice to load with weights_only=False."""
+    text = " ".join(str(e).split())
+    if "WeightsUnpickler error:" in text:
+        text = text.split("WeightsUnpickler error:", 1)[1]
+        for stop in (" Please use", " Check the documentation"):
+            text = text.split(stop, 1)[0]
+    return _one_line(text.strip() or type(e).__name__, 200)
+
+
 def _read_object(source) -> tuple[Mapping, str]:
     """A path or a mapping -> (the file's top-level mapping, a name for messages)."""
     if not isinstance(source, (str, Path)):
@@ -65,7 +84,8 @@ def _read_object(source) -> tuple[Mapping, str]:
             obj = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as e:  # noqa: BLE001 - any unreadable file
             raise ValueError(
-                f"{path} could not be read as a PyTorch checkpoint ({_one_line(e)}); {HINT}"
+                f"{path} could not be read as a PyTorch checkpoint ({_unpickling_reason(e)}); "
+                f"{HINT}. {STRIP_HINT}"
             ) from e
     if not isinstance(obj, Mapping):
         raise ValueError(f"{path.name}: not a mapping of tensors; {HINT}")
