@@ -153,3 +153,6 @@ def test_file_name_hints() -> None:
         ""
     )
     assert not depthsplat_file.is_depthsplat_path("g.safetensors")
+    from prosplat.pipeline import DEPTHSPLAT_SUFFIXES  # the worker routes by the same suffixes
+
+    assert depthsplat_file.SUFFIXES == DEPTHSPLAT_SUFFIXES
