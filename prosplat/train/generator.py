@@ -34,7 +34,7 @@ released layout, loadable with ``ProSplat.from_pretrained(generator=...)``) besi
 resumable checkpoint pair; see :mod:`prosplat.train.depthsplat_heads`::
 
     prosplat train generator --init ~/models/depthsplat-gs-small-re10k-256x256-view2-cfeab6b1.pth \\
-        --data data/train256 --val data/val256 --out runs/ds-small-ft --lr 1e-4 --warmup 100
+        --data data/train --val data/val --out runs/ds-small-ft --inputs 2,4
 
 Checkpoints (:func:`prosplat.train.common.save_checkpoint`): ``checkpoint.safetensors`` (the
 weights, loadable with ``ProSplat.from_pretrained``; the step is in its metadata) and
