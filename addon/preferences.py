@@ -6,7 +6,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from . import install, runtime, worker_process
+from . import depthsplat_file, install, runtime, worker_process
 
 DEVICES = [
     ("AUTO", "Auto", "CUDA if available, then Apple MPS, then the CPU"),
@@ -132,7 +132,9 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     device: EnumProperty(name="Device", items=DEVICES, default="AUTO")
     weights_path: StringProperty(
         name="Generator Weights", subtype="FILE_PATH",
-        description="A generator checkpoint (.safetensors); empty: the weights shipped with prosplat",
+        description="A generator checkpoint: prosplat's (.safetensors) or a DepthSplat "
+        "depthsplat-gs-*.pth you downloaded (README, 'DepthSplat weights'); empty: the weights "
+        "shipped with prosplat",
     )  # fmt: skip
     improve_weights_path: StringProperty(
         name="Enhancement Weights", subtype="FILE_PATH",
@@ -181,6 +183,7 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         col = layout.column()
         col.prop(self, "device")
         col.prop(self, "weights_path")
+        draw_depthsplat_note(col, self)
         col.prop(self, "improve_weights_path")
         col.prop(self, "enhance")
         col.prop(self, "budget")
@@ -199,6 +202,22 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
                 row.label(text=f"worker running (pid {w.pid}, {w.submitted} jobs)")
                 row.operator(PROSPLAT_OT_stop_worker.bl_idname, icon="CANCEL")
         draw_requirements(box, self)
+
+
+def draw_depthsplat_note(layout, prefs) -> None:
+    """Under a DepthSplat ``.pth`` in *Generator Weights*: its licence and the *Input Size*
+    that matches its training resolution, read from the file name (no file read while
+    drawing; the worker reads the real variant and the reconstruct report names it)."""
+    path = str(getattr(prefs, "weights_path", "") or "")
+    if not depthsplat_file.is_depthsplat_path(path):
+        return
+    h = depthsplat_file.hint(path)
+    box = layout.box()
+    for i, line in enumerate(h.lines(int(getattr(prefs, "max_input_size", 256)))):
+        icon = "INFO" if i == 0 else "NONE"
+        if h.depth_only or (line == h.licence and "non-commercial" in line):
+            icon = "ERROR"
+        box.label(text=line, icon=icon)
 
 
 def draw_requirements(layout, prefs) -> None:

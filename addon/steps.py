@@ -11,7 +11,7 @@ from typing import Any
 
 import bpy
 
-from . import cameras, pointcloud, runtime
+from . import cameras, depthsplat_file, pointcloud, runtime
 
 NEAR_PROP, FAR_PROP = "prosplat_near", "prosplat_far"
 TARGETS_PROP = "prosplat_targets"  # on an input collection: its collection of target cameras
@@ -214,11 +214,12 @@ def apply_gaussians(result: dict, name: str, collection, inputs=None):
 
 
 def describe_reconstruct(result: dict) -> str:
-    """One line: Gaussians made, views used and why, time."""
+    """One line: Gaussians made (and by which DepthSplat, if one), views used and why, time."""
     st, secs = result.get("stats", {}), result.get("seconds", {})
     refined = f", refined {secs['refine']:.1f} s" if secs.get("refine") else ""
     why = f"; views: {result['view_reason']}" if result.get("view_reason") else ""
-    return (f"reconstructed {result['count']:,} Gaussians ({st.get('input', 0):,} before "
+    by = depthsplat_file.describe_generator(result.get("generator"))
+    return (f"reconstructed {result['count']:,} Gaussians{by} ({st.get('input', 0):,} before "
             f"pruning{refined}) in {secs.get('total', 0):.1f} s{why}")  # fmt: skip
 
 

@@ -197,6 +197,8 @@ def cmd_train_generator(args: argparse.Namespace) -> int:
     path = train(cfg)
     if int(os.environ.get("RANK", "0")) == 0:  # once, not once per torchrun process
         print(f"checkpoint: {path.resolve()}")
+        if path.suffix == ".pth":  # a DepthSplat fine-tune
+            print(f"use it with: prosplat reconstruct --generator {path.resolve()} ...")
     return 0
 
 
@@ -499,7 +501,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="draw inputs and targets from all of a scene's views, not its input/target split",
     )
     tg.add_argument(
-        "--init", default=None, help="start from these generator weights (fresh optimiser)"
+        "--init",
+        default=None,
+        help="start from these weights (fresh optimiser): a prosplat generator (.safetensors) "
+        "trains all of it; a DepthSplat checkpoint (depthsplat-gs-*.pth, README 'DepthSplat "
+        "weights') fine-tunes only its Gaussian regressor and head, the rest frozen, and writes "
+        "OUT/<name>-prosplat-ft.pth for --generator / from_pretrained(generator=)",
     )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)

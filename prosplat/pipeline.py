@@ -28,6 +28,9 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "generator_tiny.safetensors"
 TRAIN_COMMAND = "prosplat train generator --config tiny --data DIR"
 CHECKPOINT_FORMAT = "prosplat-generator"
+#: Suffixes of PyTorch pickles: a generator file with one is a DepthSplat checkpoint (its
+#: released files, or prosplat's fine-tune of one); prosplat's own generators are safetensors.
+DEPTHSPLAT_SUFFIXES = (".pth", ".pt", ".ckpt")
 
 #: The image size (pixels, the short side) the shipped weights were trained at: the default
 #: model resolution of every command that runs them (``prosplat demo``, ``prosplat reconstruct``).
@@ -120,6 +123,13 @@ def near_far_from_cameras(cameras: Sequence[Camera]) -> tuple[float, float]:
     near = NEAR_FACTOR * float(pair.min()) * f_over_size
     far = FAR_FACTOR * max(float(pair.max()), near)
     return near, far
+
+
+def is_depthsplat_file(path: str | Path | None) -> bool:
+    """Whether a generator file given as one path (the add-on's *Generator Weights*, the
+    worker's ``weights``) goes to ``from_pretrained(generator=...)``: decided by the suffix,
+    which costs nothing and needs no torch.load of a file that may be 1.4 GB."""
+    return path is not None and Path(str(path)).suffix.lower() in DEPTHSPLAT_SUFFIXES
 
 
 def _load_improver(improve: str | Path | bool | None):

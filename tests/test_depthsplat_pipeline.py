@@ -159,3 +159,18 @@ def test_reconstruct_and_demo_take_a_depthsplat_checkpoint(released_file, tmp_pa
     assert code == 2
     with pytest.raises(ValueError, match="either --weights"):
         DemoConfig(weights="a.safetensors", generator=str(released_file)).check()
+
+
+def test_a_file_prosplat_wrote_keeps_its_settings_when_renamed(tmp_path):
+    """gaussian_scale_max is not in the weights: a released 448x768 file gets 0.1 from its
+    name; a fine-tune that prosplat wrote carries it inside, so any name loads right."""
+    from prosplat.generator.depthsplat import load_depthsplat
+    from prosplat.generator.depthsplat.config import SMALL_448
+
+    enc = random_encoder(SMALL_448, 3)
+    plain = save_released_format(enc, tmp_path / "renamed.pth")
+    assert load_depthsplat(plain).cfg.gaussian_scale_max == 3.0  # unknown name: the default
+    tuned = save_released_format(enc, tmp_path / "my-finetune.pth", config=True, meta={"step": 5})
+    cfg = load_depthsplat(tuned).cfg
+    assert cfg == SMALL_448 and cfg.gaussian_scale_max == 0.1
+    assert load_depthsplat(tuned, gaussian_scale_max=0.5).cfg.gaussian_scale_max == 0.5

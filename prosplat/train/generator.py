@@ -28,6 +28,14 @@ Variable input views: ``--inputs 2,4,6`` draws each step's view count from the s
 seeded by (seed, step) (all items of a step share it, every rank draws the same); ``--inputs 2``
 fixes it. Validation scores every count and logs the mean plus ``val_psnr_<N>v`` per count.
 
+Fine-tuning DepthSplat: ``--init depthsplat-gs-*.pth`` trains only its Gaussian regressor and
+head on the scenes, the rest frozen, and writes ``<init stem>-prosplat-ft.pth`` (DepthSplat's
+released layout, loadable with ``ProSplat.from_pretrained(generator=...)``) beside the usual
+resumable checkpoint pair; see :mod:`prosplat.train.depthsplat_heads`::
+
+    prosplat train generator --init ~/models/depthsplat-gs-small-re10k-256x256-view2-cfeab6b1.pth \\
+        --data data/train --val data/val --out runs/ds-small-ft --inputs 2,4
+
 Checkpoints (:func:`prosplat.train.common.save_checkpoint`): ``checkpoint.safetensors`` (the
 weights, loadable with ``ProSplat.from_pretrained``; the step is in its metadata) and
 ``state.pt`` (optimiser, step, RNG), each written atomically, with the previous weights kept as
@@ -216,7 +224,10 @@ class TrainConfig:
     # at a size below the data's, this share of steps crops a window instead of downsampling
     crop_prob: float = 0.0
     cache_scenes: int = 32  # decoded scenes kept in memory (raise it where memory allows)
-    init: str | None = None  # start from these weights (a fresh optimiser, step 0)
+    # start from these weights (a fresh optimiser, step 0): prosplat's .safetensors trains
+    # the whole generator; a DepthSplat .pth fine-tunes its Gaussian heads only, the rest
+    # frozen (prosplat.train.depthsplat_heads; ``config`` is then unused)
+    init: str | None = None
     grad_clip: float = 0.5
     warmup: int = 500
     log_every: int = 10
@@ -447,7 +458,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
 
     from prosplat.data import SceneDataset
     from prosplat.generator.config import preset
-    from prosplat.pipeline import ProSplat
+    from prosplat.pipeline import ProSplat, is_depthsplat_file
 
     device = dist.device
     out = Path(cfg.out)
@@ -456,21 +467,38 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     random.seed(cfg.seed)
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank (DDP also broadcasts)
 
-    pipe = ProSplat(model_config or preset(cfg.config))
-    model = pipe.generator.to(device).train()
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    heads = is_depthsplat_file(cfg.init)  # fine-tune a DepthSplat checkpoint's heads
+    if heads:
+        if cfg.input_depth_weight > 0:
+            raise ValueError(
+                "--input-depth-weight supervises the depth predictor, which stays frozen when "
+                "fine-tuning a DepthSplat checkpoint; drop it (--depth-weight still works)"
+            )
+        from prosplat.train.depthsplat_heads import load_for_tuning
+
+        model = load_for_tuning(cfg.init).to(device).train()
+        params = model.trainable_parameters()
+        pipe = None
+    else:
+        pipe = ProSplat(model_config or preset(cfg.config))
+        model = pipe.generator.to(device).train()
+        params = list(model.parameters())
+    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     ckpt = load_checkpoint(out, map_location=device)  # every rank reads before rank 0 writes
     if ckpt is None and cfg_path.exists():
         raise FileExistsError(
             f"{out} holds another run's config but no checkpoint; pick a new --out"
         )
     step = 0
-    if ckpt is None and cfg.init:
+    if ckpt is None and cfg.init and not heads:
         from prosplat.checkpoints import read_checkpoint
 
         model.load_state_dict(read_checkpoint(Path(cfg.init), "generator")[0])
     if ckpt is not None:
-        model.load_state_dict(ckpt.weights)
+        if heads:
+            model.load_trainable(ckpt.weights, str(ckpt.weights_path))
+        else:
+            model.load_state_dict(ckpt.weights)
         opt.load_state_dict(ckpt.state["optimizer"])
         step = ckpt.step
         torch.set_rng_state(ckpt.state["rng"].cpu())
@@ -528,7 +556,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             loss, parts = render_loss(output, batch, cfg, lpips_fn)
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip))
+            grad_norm = float(torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip))
             if not math.isfinite(float(loss.detach())):
                 raise FloatingPointError(
                     f"loss became {float(loss.detach())} at step {step}; lower --lr"
@@ -553,12 +581,19 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                     log.write(json.dumps(rec) + "\n")
                     log.flush()
             if dist.is_main and (step % cfg.save_every == 0 or step == cfg.steps):
-                _save(pipe, opt, step, out)
+                if heads:
+                    _save_heads(model, opt, step, out, cfg.init)
+                else:
+                    _save(pipe, opt, step, out)
     finally:
         bar.close()
         if log is not None:
             log.close()
     dist.barrier()  # the final checkpoint exists before any rank returns its path
+    if heads:
+        from prosplat.train.depthsplat_heads import finetuned_path
+
+        return finetuned_path(out, cfg.init)
     return out / "checkpoint.safetensors"
 
 
@@ -572,3 +607,19 @@ def _save(pipe, opt, step: int, out: Path) -> None:
         {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()},
         metadata=_weights_metadata(pipe),
     )
+
+
+def _save_heads(model, opt, step: int, out: Path, init: str) -> None:
+    """A DepthSplat fine-tune: the trainable tensors and optimiser as a resumable pair (as
+    :func:`_save`), then the whole encoder as a released-layout ``.pth`` that
+    ``ProSplat.from_pretrained(generator=...)`` loads (:mod:`prosplat.train.depthsplat_heads`)."""
+    from prosplat.train.depthsplat_heads import FORMAT, finetuned_path
+
+    save_checkpoint(
+        out,
+        step,
+        model.trainable_state(),
+        {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()},
+        metadata={"format": FORMAT, "init": str(init)},
+    )
+    model.save_full(finetuned_path(out, init), init, step)

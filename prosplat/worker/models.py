@@ -34,6 +34,23 @@ def _file_key(path: str) -> tuple:
     return (path, st.st_size, st.st_mtime_ns)
 
 
+def load_generator(weights: str | None, device: torch.device):
+    """A :class:`~prosplat.pipeline.ProSplat` without stage 2 for one generator file: None
+    -> the shipped weights, a ``.safetensors`` -> a prosplat generator, a ``.pth`` (``.pt``,
+    ``.ckpt``) -> a DepthSplat checkpoint through ``from_pretrained(generator=...)``, at the
+    size each job asks for. A DepthSplat file that does not load is a ValueError naming the
+    file and what is wrong with it, on one line (the add-on shows it in the status bar)."""
+    from prosplat.pipeline import ProSplat, is_depthsplat_file
+
+    if not is_depthsplat_file(weights):
+        return ProSplat.from_pretrained(weights or None, device=device, improve=False)
+    try:
+        return ProSplat.from_pretrained(generator=weights, device=device, improve=False)
+    except ValueError as e:
+        text = " ".join(str(e).split())
+        raise ValueError(f"the DepthSplat generator file could not be used: {text}") from e
+
+
 class ModelCache:
     """The worker's loaded generator and improvement model (thread-safe: two in-process jobs
     may ask at once; the second waits for the first one's load instead of loading twice)."""
@@ -75,7 +92,6 @@ class ModelCache:
         ``improver`` never changes what the next job gets.
         """
         from prosplat.improve.io import load_improver
-        from prosplat.pipeline import ProSplat
 
         gen_key = (_file_key(str(weights)) if weights else "", str(device))
         imp_path = self._improver_path(improve)
@@ -84,7 +100,7 @@ class ModelCache:
             hit = True
             if self._generator is None or self._generator[0] != gen_key:
                 self._generator = None  # free the old one before loading the new one
-                base = ProSplat.from_pretrained(weights or None, device=device, improve=False)
+                base = load_generator(weights, device)
                 self._generator = (gen_key, base)
                 self.loads["generator"] += 1
                 hit = False

@@ -25,7 +25,7 @@ from prosplat.gaussians import Gaussians
 from prosplat.worker import Progress
 from prosplat.worker.models import MODELS
 
-SIZE_MULTIPLE = 32  # the generator's image sizes are multiples of this
+SIZE_MULTIPLE = 32  # the generator's image sizes are multiples of this (DepthSplat's: 16 or 32)
 
 
 def pick_device(name: str | None) -> torch.device:
@@ -215,7 +215,18 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
         "generator_size": [gw, gh],
         "seconds": {"generator": t_gen, "refine": t_refine, "total": time.perf_counter() - t0},
         "arrays": to_attributes(g), "views": [f.get("name") for f in frames], "view_reason": views,
+        "generator": generator_info(model.generator),
     }  # fmt: skip
+
+
+def generator_info(generator) -> dict[str, str]:
+    """What made the Gaussians, for the add-on's report: ``{"kind": "prosplat"}``, or for a
+    DepthSplat checkpoint its kind, ViT, variant (the released name, when known) and licence
+    (base and large are non-commercial)."""
+    if getattr(generator, "kind", None) != "depthsplat":
+        return {"kind": "prosplat"}
+    return {"kind": "depthsplat", "vit": generator.config.monodepth_vit_type,
+            "variant": str(getattr(generator.encoder, "variant", "")), "licence": generator.licence}  # fmt: skip
 
 
 def _refine(params: dict, g: Gaussians, images, cameras, depths, progress: Progress):

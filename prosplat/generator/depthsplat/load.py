@@ -4,6 +4,7 @@ deterministic random-weights recipe used by the parity tests."""
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -21,6 +22,11 @@ from prosplat.generator.depthsplat.dpt import LEVEL_INPUTS, WIDTHS
 from prosplat.generator.depthsplat.model import DepthSplatEncoder
 
 PREFIX = "encoder."
+#: Where a file written by prosplat (``save_released_format(..., config=True)``, e.g. the
+#: output of ``prosplat train generator --init X.pth``) keeps its full DepthSplat settings:
+#: ``gaussian_scale_max`` is not in the weights, and a fine-tuned file may be renamed.
+CONFIG_KEY = "prosplat_depthsplat_config"
+META_KEY = "prosplat_meta"
 HINT = (
     "expected a DepthSplat checkpoint: a released depthsplat-*.pth (a Lightning checkpoint "
     "whose state_dict keys start with 'encoder.'), a depth checkpoint ({'model': ...}), or "
@@ -28,32 +34,66 @@ HINT = (
 )
 
 
-def read_state_dict(source) -> tuple[dict[str, Tensor], bool, str]:
-    """A path or a mapping -> (encoder state dict without prefix, depth_only, description)."""
-    name = "<state dict>"
-    if isinstance(source, (str, Path)):
-        path = Path(source).expanduser()
-        if not path.is_file():
-            raise FileNotFoundError(
-                f"DepthSplat checkpoint {path} not found; download it (README, 'DepthSplat "
-                "weights') and pass its path"
-            )
-        name = path.name
-        if path.suffix == ".safetensors":
-            from safetensors.torch import load_file
+def _one_line(text: str, limit: int = 300) -> str:
+    """``text`` on one line, cut at ``limit`` characters: torch's unpickling errors run to
+    several paragraphs, and the add-on shows an error in one status-bar line."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
+
+STRIP_HINT = (
+    "Checkpoints are read with torch.load(weights_only=True), which runs no code from the file; "
+    "a full training checkpoint that holds Python objects can be cut to its weights (only if "
+    "you trust it) with: python -c \"import torch; torch.save({'state_dict': torch.load('IN', "
+    "weights_only=False)['state_dict']}, 'OUT.pth')\""
+)
+
+
+def _unpickling_reason(e: Exception) -> str:
+    """The specific part of torch's weights-only error ("Unsupported operand 110", "Unsupported
+    global: GLOBAL x.Y ..."), without its advice to load with weights_only=False."""
+    text = " ".join(str(e).split())
+    if "WeightsUnpickler error:" in text:
+        text = text.split("WeightsUnpickler error:", 1)[1]
+        for stop in (" Please use", " Check the documentation"):
+            text = text.split(stop, 1)[0]
+    return _one_line(text.strip() or type(e).__name__, 200)
+
+
+def _read_object(source) -> tuple[Mapping, str]:
+    """A path or a mapping -> (the file's top-level mapping, a name for messages)."""
+    if not isinstance(source, (str, Path)):
+        if not isinstance(source, Mapping):
+            raise ValueError(f"<state dict>: not a mapping of tensors; {HINT}")
+        return source, "<state dict>"
+    path = Path(source).expanduser()
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"DepthSplat checkpoint {path} not found; download it (README, 'DepthSplat "
+            "weights') and pass its path"
+        )
+    if path.suffix == ".safetensors":
+        from safetensors.torch import load_file
+
+        try:
             obj = load_file(str(path))
-        else:
-            try:
-                obj = torch.load(path, map_location="cpu", weights_only=True)
-            except Exception as e:  # noqa: BLE001 - any unreadable file
-                raise ValueError(
-                    f"{path} could not be read as a PyTorch checkpoint ({e}); {HINT}"
-                ) from e
+        except Exception as e:  # noqa: BLE001 - any unreadable file
+            raise ValueError(f"{path} is not a readable safetensors file ({_one_line(e)})") from e
     else:
-        obj = source
+        try:
+            obj = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # noqa: BLE001 - any unreadable file
+            raise ValueError(
+                f"{path} could not be read as a PyTorch checkpoint ({_unpickling_reason(e)}); "
+                f"{HINT}. {STRIP_HINT}"
+            ) from e
     if not isinstance(obj, Mapping):
-        raise ValueError(f"{name}: not a mapping of tensors; {HINT}")
+        raise ValueError(f"{path.name}: not a mapping of tensors; {HINT}")
+    return obj, path.name
+
+
+def _encoder_state(obj: Mapping, name: str) -> tuple[dict[str, Tensor], bool]:
+    """The encoder's state dict (keys without ``encoder.``) and whether it is depth only."""
     depth_only = False
     if "state_dict" in obj and isinstance(obj["state_dict"], Mapping):
         obj = obj["state_dict"]
@@ -78,14 +118,33 @@ def read_state_dict(source) -> tuple[dict[str, Tensor], bool, str]:
         obj = {"depth_predictor." + k: v for k, v in obj.items()}  # a bare depth_predictor
     obj = {k: v for k, v in obj.items() if isinstance(v, Tensor)}
     if not any(k.startswith("depth_predictor.") for k in obj):
-        sample = ", ".join(sorted(keys)[:5])
+        sample = ", ".join(sorted(str(k) for k in keys)[:5])
         raise ValueError(
             f"{name} is not a DepthSplat checkpoint (no 'depth_predictor.*' keys; "
             f"found {sample}...); {HINT}"
         )
     if "gaussian_head.0.weight" not in obj:
         depth_only = True
-    return obj, depth_only, name
+    return obj, depth_only
+
+
+def read_state_dict(source) -> tuple[dict[str, Tensor], bool, str]:
+    """A path or a mapping -> (encoder state dict without prefix, depth_only, description)."""
+    obj, name = _read_object(source)
+    sd, depth_only = _encoder_state(obj, name)
+    return sd, depth_only, name
+
+
+def stored_config(obj: Mapping, name: str = "") -> DepthSplatConfig | None:
+    """The settings a file written by :func:`save_released_format` with ``config=True``
+    carries under :data:`CONFIG_KEY` (prosplat's fine-tuned files), else None. Released files
+    have none: their variant is read from the shapes and their name."""
+    stored = obj.get(CONFIG_KEY) if isinstance(obj, Mapping) else None
+    if stored is None:
+        return None
+    if not isinstance(stored, Mapping):
+        raise ValueError(f"{name}: '{CONFIG_KEY}' must be a mapping of DepthSplat settings")
+    return DepthSplatConfig.from_dict(dict(stored))
 
 
 def detect_config(sd: Mapping[str, Tensor], depth_only: bool, name: str = "") -> DepthSplatConfig:
@@ -167,7 +226,8 @@ def load_depthsplat(path_or_state_dict, device=None, **overrides) -> DepthSplatE
     Args:
         path_or_state_dict: a released ``depthsplat-*.pth`` (or ``.safetensors``), a Lightning
             checkpoint dict, a depth checkpoint dict ``{'model': ...}``, or an encoder state
-            dict (keys without the ``encoder.`` prefix).
+            dict (keys without the ``encoder.`` prefix). A file prosplat wrote (a fine-tuned
+            generator) carries its settings, which are used instead of the detected ones.
         device: where to put the model (default CPU).
         **overrides: DepthSplat encoder settings (``monodepth_vit_type``, ``num_scales``,
             ``upsample_factor``, ``lowest_feature_resolution``, ``gaussian_scale_max``,
@@ -177,8 +237,9 @@ def load_depthsplat(path_or_state_dict, device=None, **overrides) -> DepthSplatE
         shapes that do not match the (detected or overridden) configuration; the message
         names the missing and unexpected keys.
     """
-    sd, depth_only, name = read_state_dict(path_or_state_dict)
-    cfg = detect_config(sd, depth_only, name)
+    obj, name = _read_object(path_or_state_dict)
+    sd, depth_only = _encoder_state(obj, name)
+    cfg = stored_config(obj, name) or detect_config(sd, depth_only, name)
     if overrides:
         cfg = cfg.with_overrides(**overrides)
     with torch.device("meta"):
@@ -218,16 +279,31 @@ def random_encoder(cfg: DepthSplatConfig, seed: int) -> DepthSplatEncoder:
     return model.to(memory_format=torch.channels_last).eval()
 
 
-def save_released_format(model: DepthSplatEncoder, path: str | Path) -> Path:
+def save_released_format(
+    model: DepthSplatEncoder,
+    path: str | Path,
+    config: bool = False,
+    meta: Mapping[str, object] | None = None,
+) -> Path:
     """Write ``model`` as DepthSplat writes its released files (a dict with a Lightning-style
-    ``state_dict`` whose keys start with ``encoder.``). For tests and demos."""
+    ``state_dict`` whose keys start with ``encoder.``), so :func:`load_depthsplat` and
+    DepthSplat's own code read it. ``config``: also store the settings under
+    :data:`CONFIG_KEY` (and ``meta``, plain values, under :data:`META_KEY`), which DepthSplat
+    ignores. Written through a temp file and a rename: a reader never sees half a file."""
     path = Path(path)
-    sd = {PREFIX + k: v.detach().cpu() for k, v in model.state_dict().items()}
-    torch.save({"state_dict": sd, "pytorch-lightning_version": "2.4.0"}, path)
+    sd = {PREFIX + k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    obj: dict = {"state_dict": sd, "pytorch-lightning_version": "2.4.0"}
+    if config:
+        obj[CONFIG_KEY] = model.cfg.to_dict()
+        obj[META_KEY] = dict(meta or {})
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
     return path
 
 
 __all__ = [
+    "CONFIG_KEY",
     "RELEASED",
     "detect_config",
     "load_depthsplat",
@@ -235,4 +311,5 @@ __all__ = [
     "random_state_dict",
     "read_state_dict",
     "save_released_format",
+    "stored_config",
 ]
