@@ -155,7 +155,9 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     )  # fmt: skip
     max_input_size: IntProperty(
         name="Input Size", default=256, min=32, soft_max=1024,
-        description="Long side (pixels) input images are scaled to for the generator",
+        description="Long side (pixels) input images are scaled to: the size refinement fits "
+        "and stage 2's references come at. The generator itself runs at the size its weights "
+        "were trained at (64 px high for the shipped ones) when that is smaller",
     )  # fmt: skip
     python_path: StringProperty(
         name="External Python", subtype="FILE_PATH",

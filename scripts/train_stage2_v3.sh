@@ -5,7 +5,8 @@
 # recipe (replicate padding, alpha input, 48-px crops, flips, LPIPS weight 0.1); batches come
 # from the four curated sets in turn. Resumable: finished curated sets are kept, and re-running
 # continues the run in runs/s2v3/run.
-#   scripts/train_stage2_v3.sh [STEPS]   (default 3000; INIT= another starting file)
+#   scripts/train_stage2_v3.sh [STEPS]   (default 3000; INIT= another starting file,
+#   LPIPS= the LPIPS weight (default 0.1), RUN= the run folder under runs/s2v3 (default run))
 # Data: data/train128 (scripts/render_v2_data.sh train 2) and data/val128 (... eval).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,7 +27,7 @@ curate val_ref128 data/val128 4 128 300 &
 curate val_raw64 data/val128 2,4 64 0
 wait
 $P train improve --data $OUT/raw64.safetensors,$OUT/ref64.safetensors,$OUT/raw128.safetensors,$OUT/ref128.safetensors \
-  --val $OUT/val_ref128.safetensors --out $OUT/run \
+  --val $OUT/val_ref128.safetensors --out $OUT/${RUN:-run} \
   --init "${INIT:-prosplat/weights/improve_tiny.safetensors}" --padding replicate --alpha --crop 48 \
-  --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 50 --lpips-weight 0.1 \
+  --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 50 --lpips-weight ${LPIPS:-0.1} \
   --val-every 500 --save-every 100 --log-every 20
