@@ -421,3 +421,28 @@ def test_find_scenes_skips_half_rendered_folders(tmp_path):
     (tmp_path / "room_000003").mkdir()
     (tmp_path / "room_000003" / "transforms.json").write_text("{}")
     assert [p.name for p in find_scenes(tmp_path)] == ["room_000003"]
+
+
+def test_compare_improve_scores_several_stage2_models_on_one_reconstruction(data):
+    """``--compare-improve LABEL=PATH`` adds an enhanced row per model beside each enhanced
+    row, sharing the reconstruction: the shipped file again gives the same images."""
+    from prosplat.improve.io import DEFAULT_IMPROVE_WEIGHTS
+
+    spec = f"again={DEFAULT_IMPROVE_WEIGHTS}"
+    ctx = LadderContext({"compare_improve": [spec], "refine_steps": [2], "generator_size": 32})
+    rungs = {r.name: r for r in build_rungs(["generator", "enhanced", "refine"], ctx)}
+    assert list(rungs) == ["generator", "enhanced", "enhanced (again)", "refine 2",
+                           "refine 2 enhanced", "refine 2 enhanced (again)"]  # fmt: skip
+    assert rungs["enhanced (again)"].shares == rungs["generator"].shares == "generator"
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    g = rungs["generator"].reconstruct(inp)
+    cam = scene.cameras[scene.target_indices[0]]
+    a = rungs["enhanced"].view(g, cam, inp).image
+    b = rungs["enhanced (again)"].view(g, cam, inp).image
+    assert torch.allclose(a, b) and not torch.allclose(
+        a, rungs["generator"].view(g, cam, inp).image
+    )
+    with pytest.raises(ValueError, match="LABEL=PATH"):
+        build_rungs(["enhanced"], LadderContext({"compare_improve": ["nolabel"]}))

@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "evaluation size); its Gaussians render at the evaluation size")  # fmt: skip
     parser.add_argument("--improve", default=None,
                         help="improvement-model checkpoint (default shipped)")  # fmt: skip
+    parser.add_argument("--compare-improve", action="append", default=[], metavar="LABEL=PATH",
+                        help="another improvement model scored on the same reconstructions: "
+                        "rows 'enhanced (LABEL)' etc. (repeatable)")  # fmt: skip
     parser.add_argument("--depthsplat", default=None, help="DepthSplat checkpoint (optional row)")
     parser.add_argument("--budget", type=float, default=None,
                         help="generator Gaussian budget: a count or a fraction (default automatic)")  # fmt: skip
@@ -110,6 +113,8 @@ def command(args: argparse.Namespace) -> str:
     for flag in ("generator", "generator_size", "improve", "depthsplat", "budget", "scenes"):
         if getattr(args, flag) is not None:
             parts += [f"--{flag.replace('_', '-')}", str(getattr(args, flag))]
+    for spec in args.compare_improve:
+        parts += ["--compare-improve", spec]
     if args.bf16:
         parts.append("--bf16")
     if args.resample != "targets":

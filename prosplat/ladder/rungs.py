@@ -93,6 +93,7 @@ class LadderContext:
 
     options: dict[str, Any] = field(default_factory=dict)
     _model: Any = None
+    _improvers: dict[str, Any] | None = None
 
     @property
     def model(self):
@@ -111,6 +112,27 @@ class LadderContext:
         if self.options.get("improve") is False or self.model.improver is None:
             raise SkipRung(f"{rung}: no improvement model (pass --improve PATH)")
         return self.model.improver
+
+    def improvers(self, rung: str) -> dict[str, Any]:
+        """``{suffix: improvement model}`` for every enhanced row: ``""`` for the main one
+        (:meth:`improver`), then ``" (LABEL)"`` for each ``compare_improve`` entry
+        ``LABEL=PATH`` (``--compare-improve``), so that several stage-2 models are scored on
+        the same reconstructions in one run. Empty when no improvement model is loaded."""
+        if self._improvers is None:
+            from prosplat.improve.io import load_improver
+
+            extra = {}
+            for spec in self.options.get("compare_improve") or []:
+                label, _, path = str(spec).rpartition("=")
+                if not label or not path:
+                    raise ValueError(f"--compare-improve {spec!r} is not LABEL=PATH")
+                extra[f" ({label})"] = load_improver(path).to(self.model.device).eval()
+            self._improvers = extra
+        try:
+            main = {"": self.improver(rung)}
+        except SkipRung:
+            main = {}
+        return main | self._improvers
 
 
 Factory = Callable[[LadderContext], list[Rung]]
@@ -245,15 +267,25 @@ def generator_rungs(ctx: LadderContext) -> list[Rung]:
     return [Rung("generator", _generator_gaussians(ctx), splat_view, "generator", depth=True)]
 
 
-@register("enhanced")
-def enhanced_rungs(ctx: LadderContext) -> list[Rung]:
-    """The generator's render enhanced by stage 2 (what ``ProSplat.render`` returns)."""
-    improver, dtype = ctx.improver("enhanced"), _dtype(ctx)
-
+def _enhanced_view(improver, dtype) -> Callable[[Any, Camera, SceneInputs], View]:
     def view(g, cam: Camera, inp: SceneInputs) -> View:
         return splat_view(g, cam, inp, improver, dtype)
 
-    return [Rung("enhanced", _generator_gaussians(ctx), view, "generator", depth=True)]
+    return view
+
+
+@register("enhanced")
+def enhanced_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's render enhanced by stage 2 (what ``ProSplat.render`` returns), one row
+    per improvement model (:meth:`LadderContext.improvers`)."""
+    improvers, dtype = ctx.improvers("enhanced"), _dtype(ctx)
+    if not improvers:
+        ctx.improver("enhanced")  # raises SkipRung with the reason
+    recon = _generator_gaussians(ctx)
+    return [
+        Rung(f"enhanced{suffix}", recon, _enhanced_view(imp, dtype), "generator", depth=True)
+        for suffix, imp in improvers.items()
+    ]
 
 
 @register("refine")
@@ -267,10 +299,7 @@ def refine_rungs(ctx: LadderContext) -> list[Rung]:
         raise SkipRung(
             "no refinement asked for; pass --refine-steps 100 300 or --refine-seconds 10"
         )
-    try:
-        improver, dtype = ctx.improver("refine enhanced"), _dtype(ctx)
-    except SkipRung:
-        improver = dtype = None
+    improvers, dtype = ctx.improvers("refine enhanced"), _dtype(ctx)
 
     def make(label: str, n: int | None, sec: float | None) -> list[Rung]:
         def reconstruct(inp: SceneInputs):
@@ -280,13 +309,12 @@ def refine_rungs(ctx: LadderContext) -> list[Rung]:
                 generator_height=ctx.options.get("generator_size"),
             ).gaussians  # fmt: skip
 
-        def enhanced(g, cam: Camera, inp: SceneInputs) -> View:
-            return splat_view(g, cam, inp, improver, dtype)
-
         raw = Rung(label, reconstruct, splat_view, label, depth=True, warmup=False)
-        if improver is None:
-            return [raw]
-        return [raw, Rung(f"{label} enhanced", reconstruct, enhanced, label, depth=True)]
+        return [raw] + [
+            Rung(f"{label} enhanced{suffix}", reconstruct, _enhanced_view(imp, dtype), label,
+                 depth=True)
+            for suffix, imp in improvers.items()
+        ]  # fmt: skip
 
     rungs = [r for n in steps for r in make(f"refine {n}", n, None)]
     return rungs + [r for sec in seconds for r in make(f"refine {sec:g} s", None, sec)]
@@ -331,15 +359,18 @@ def true_depth_rungs(ctx: LadderContext) -> list[Rung]:
     """The upper bound: Gaussians at Blender's true input depth, raw and (with an improvement
     model) enhanced."""
     rungs = [Rung("true depth", _true_depth, true_depth_view, "true depth", depth=True)]
-    try:
-        improver, dtype = ctx.improver("true depth enhanced"), _dtype(ctx)
-    except SkipRung:
-        return rungs
+    dtype = _dtype(ctx)
 
-    def view(state, cam: Camera, inp: SceneInputs) -> View:
-        return true_depth_view(state, cam, inp, improver, dtype)
+    def make(improver) -> Callable[[Any, Camera, SceneInputs], View]:
+        def view(state, cam: Camera, inp: SceneInputs) -> View:
+            return true_depth_view(state, cam, inp, improver, dtype)
 
-    return rungs + [Rung("true depth enhanced", _true_depth, view, "true depth", depth=True)]
+        return view
+
+    return rungs + [
+        Rung(f"true depth enhanced{suffix}", _true_depth, make(imp), "true depth", depth=True)
+        for suffix, imp in ctx.improvers("true depth enhanced").items()
+    ]
 
 
 @register("depthsplat")
