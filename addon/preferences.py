@@ -151,10 +151,11 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     refine_seconds: FloatProperty(
         name="Refine Seconds", default=runtime.Defaults.refine_seconds, min=0.0, soft_max=60.0,
         description="After reconstructing, fit the Gaussians to the input images for this many "
-        "seconds (0: off). Sharper scenes for a few seconds; Esc cancels",
+        "seconds (0: off). The default 3 s is about 100-200 steps at Input Size 128, which "
+        "measured +0.8 dB on new views with no scene family worse; Esc cancels",
     )  # fmt: skip
     max_input_size: IntProperty(
-        name="Input Size", default=256, min=32, soft_max=1024,
+        name="Input Size", default=runtime.Defaults.max_input_size, min=32, soft_max=1024,
         description="Long side (pixels) input images are scaled to: the size refinement fits "
         "and stage 2's references come at. The generator itself runs at the size its weights "
         "were trained at (64 px high for the shipped ones) when that is smaller",
@@ -215,7 +216,9 @@ def draw_depthsplat_note(layout, prefs) -> None:
         return
     h = depthsplat_file.hint(path)
     box = layout.box()
-    for i, line in enumerate(h.lines(int(getattr(prefs, "max_input_size", 256)))):
+    for i, line in enumerate(
+        h.lines(int(getattr(prefs, "max_input_size", runtime.Defaults.max_input_size)))
+    ):
         icon = "INFO" if i == 0 else "NONE"
         if h.depth_only or (line == h.licence and "non-commercial" in line):
             icon = "ERROR"

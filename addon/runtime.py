@@ -44,8 +44,8 @@ class Defaults:
     improve_weights_path: str = ""
     enhance: bool = True
     budget: int = 0
-    refine_seconds: float = 0.0  # README, "Refinement": why this default
-    max_input_size: int = 256
+    refine_seconds: float = 3.0  # README, "Refinement": why this default
+    max_input_size: int = 128  # the size refinement fits; the generator runs at its own
     python_path: str = ""
     threads: int = 0  # 0: automatic, prosplat.worker.threads.auto_threads
     keep_worker: bool = True

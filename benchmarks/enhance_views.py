@@ -72,10 +72,8 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
         for size in args.sizes:
             images, cams = resize_views(scene.images, scene.cameras, size)
             inp_images, inp_cams = images[idx], [cams[i] for i in idx]
-            gen_size = min(size, args.generator_size or size)
-            gen_images, gen_cams = resize_views(
-                scene.images[idx], [scene.cameras[i] for i in idx], gen_size
-            )
+            # as the pipeline runs it: at most the weights' trained size (--generator-size)
+            gen_images, gen_cams = model.generator_views(inp_images, inp_cams, args.generator_size)
             with torch.no_grad():
                 out = model.reconstruct_full(gen_images, gen_cams, near, far)
                 g = prune_pixel_aligned(out.gaussians(0), out.depths[0], gen_cams)[0]
@@ -104,9 +102,9 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
                         for ws in args.working_sizes:
                             e = enhance(
                                 improver, r.rgb, cam, inp_images[j], inp_cams[j],
-                                working_size=ws, alpha=r.alpha,
+                                working_size=None if ws < 0 else ws, alpha=r.alpha,
                             )  # fmt: skip
-                            key = f"{label} ws{ws}"
+                            key = f"{label} ws{'model' if ws < 0 else ws}"
                             row[f"psnr {key}"] = float(psnr(e, gt))
                             row[f"lpips {key}"] = float(lpips(e[None], gt[None]))
                             row[f"departure {key}"] = departure(
@@ -180,12 +178,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--data", type=Path, nargs="+", required=True, help="scene folders' roots")
     p.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
     p.add_argument("--views", type=int, default=4)
-    p.add_argument("--working-sizes", type=int, nargs="+", default=[0, 64])
+    p.add_argument(
+        "--working-sizes",
+        type=int,
+        nargs="+",
+        default=[0, 64],
+        help="stage 2's working sizes to compare (0: the view's own size, -1: each model's own)",
+    )
     p.add_argument(
         "--generator-size",
         type=int,
         default=None,
-        help="run the generator at most this high (default: the evaluation size)",
+        help="run the generator at most this high (default: the weights' trained size, as "
+        "the pipeline does; 0: the evaluation size)",
     )
     p.add_argument(
         "--flicker-frames",
