@@ -117,7 +117,7 @@ class LadderContext:
         """``{suffix: improvement model}`` for every enhanced row: ``""`` for the main one
         (:meth:`improver`), then ``" (LABEL)"`` for each ``compare_improve`` entry
         ``LABEL=PATH`` (``--compare-improve``), so that several stage-2 models are scored on
-        the same reconstructions in one run. Empty when no improvement model is loaded."""
+        the same reconstructions in one run. Empty when there is neither."""
         if self._improvers is None:
             from prosplat.improve.io import load_improver
 

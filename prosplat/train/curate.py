@@ -65,7 +65,7 @@ def curate_scene(
         full = model.reconstruct_full(gen_images, gen_cams, near, far)
         gaussians = full.gaussians(0)
         gen_depths = full.depths[0]  # [N,h,w] the generator's depth per input view
-        same_size = gen_images is scene.images[idx] or gen_images.shape == scene.images[idx].shape
+        same_size = gen_images.shape[-2:] == scene.images.shape[-2:]
         input_depths = gen_depths if same_size else None  # MORI's overlap needs input-size maps
         if refine_steps:
             gaussians = prune_pixel_aligned(gaussians.detach(), gen_depths, gen_cams)[0]
