@@ -90,8 +90,9 @@ def score_cases(
             g = model.reconstruct(images, cams, case.near, case.far, **reconstruct_kwargs)
             g = g.detach()
         else:
-            out = model.reconstruct_full(images, cams, case.near, case.far)
-            g = prune_pixel_aligned(out.gaussians(0), out.depths[0], cams, budget=budget)[0]
+            gen_images, gen_cams = model.generator_views(images, cams)  # as the pipeline runs it
+            out = model.reconstruct_full(gen_images, gen_cams, case.near, case.far)
+            g = prune_pixel_aligned(out.gaussians(0), out.depths[0], gen_cams, budget=budget)[0]
         recon_s = time.perf_counter() - t0
         for gt, cam in zip(case.target_images, case.target_cameras, strict=True):
             t1 = time.perf_counter()

@@ -77,8 +77,9 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         "--size",
         type=int,
         default=TRAINED_SIZE,
-        help=f"model image height in px, a multiple of 32 (default {TRAINED_SIZE}: what the "
-        "shipped weights were trained at); the width keeps the aspect",
+        help=f"image height in px the inputs are loaded, refined and rendered at, a multiple of "
+        f"32 (default {TRAINED_SIZE}: what the shipped weights were trained at; the generator "
+        "never runs above its trained size); the width keeps the aspect",
     )
     p.add_argument(
         "--background",
@@ -295,10 +296,14 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
         g = model.reconstruct(images, cameras, near, far, **kwargs).detach()
         note = ", ".join(f"{k}={v}" for k, v in kwargs.items())
     else:
-        out = model.reconstruct_full(images, cameras, near, far)
+        # as the pipeline runs it: the generator at most at its weights' trained size
+        gen_images, gen_cameras = model.generator_views(images, cameras)
+        out = model.reconstruct_full(gen_images, gen_cameras, near, far)
         budget = args.budget
         budget = None if budget is None else (int(budget) if budget > 1 else budget)
-        g, _, stats = prune_pixel_aligned(out.gaussians(0), out.depths[0], cameras, budget=budget)
+        g, _, stats = prune_pixel_aligned(
+            out.gaussians(0), out.depths[0], gen_cameras, budget=budget
+        )
         note = f"budget kept {stats['kept']:,} of {stats['input']:,}"
     return g, time.perf_counter() - t0, note
 
