@@ -32,7 +32,7 @@ from prosplat.evaluate import pick_inputs
 from prosplat.flicker import camera_path, flicker
 from prosplat.image_io import write_image
 from prosplat.improve.mori import select_reference
-from prosplat.improve.pattern import fixed_pattern_score
+from prosplat.improve.pattern import fixed_pattern_score, lattice_score
 from prosplat.metrics import LPIPS, psnr
 from prosplat.render import render
 
@@ -219,10 +219,10 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     pattern = [
         "",
-        "Fixed pattern (prosplat.improve.pattern; ~1 = none)",
+        "Fixed pattern and lattice (prosplat.improve.pattern; ~1 = none)",
         "",
-        "| size | model, working size | views | ratio |",
-        "|---|---|---|---|",
+        "| size | model, working size | views | ratio | lattice 8 px | lattice 16 px |",
+        "|---|---|---|---|---|---|",
     ]
     for (size, key), items in sorted(changes.items()):
         shapes = {tuple(c.shape) for c in items}
@@ -230,7 +230,11 @@ def main(argv: list[str] | None = None) -> int:
             continue  # views of different shapes cannot be averaged pixel by pixel
         stack = torch.stack(items)
         score = fixed_pattern_score(stack)
-        pattern.append(f"| {size} | {key} | {score.views} | {score.ratio:.2f} |")
+        lattice = [lattice_score(stack, period).ratio for period in (8, 16)]
+        pattern.append(
+            f"| {size} | {key} | {score.views} | {score.ratio:.2f} | {lattice[0]:.2f} | "
+            f"{lattice[1]:.2f} |"
+        )
         mean = stack.mean(0)
         amplified = (0.5 + 0.5 * mean / mean.abs().max().clamp_min(1e-6)).clamp(0, 1)
         name = key.replace(" ", "_")

@@ -70,3 +70,50 @@ def fixed_pattern_score(changes: Tensor, controls: int = 16, seed: int = 0) -> P
     control = float(torch.tensor(shuffled).median())
     ratio = structure / control if control > 0 else (float("inf") if structure > 0 else 1.0)
     return PatternScore(ratio=ratio, structure=structure, control=control, views=changes.shape[0])
+
+
+@dataclass(frozen=True)
+class LatticeScore:
+    """``ratio``: the mean power of the changes at the lattice frequencies over the mean
+    power at the frequencies around them; ``period`` in pixels; ``views`` averaged."""
+
+    ratio: float
+    period: int
+    views: int
+
+
+def lattice_score(changes: Tensor, period: int = 16) -> LatticeScore:
+    """How much of what stage 2 adds repeats every ``period`` pixels, in any phase.
+
+    :func:`fixed_pattern_score` misses a lattice whose phase follows the image (v3 paints blobs
+    on a 16-px lattice wherever a render is washed out, BENCHMARKS "Stage 2 v3"): averaging the
+    changes cancels it. Averaging their *power spectra* does not, since a shift only changes a
+    spectrum's phase. The statistic: the mean power of ``changes [N,3,H,W]`` at the lattice's
+    harmonics ``(i·H/period, j·W/period)`` (not both 0), over the mean power of the 8 bins
+    around each. About 1: no lattice; a lattice of the period gives a large ratio.
+    """
+    if changes.ndim != 4 or changes.shape[1] != 3 or changes.shape[0] < 1:
+        raise ValueError(f"changes must be [N>=1,3,H,W], got {list(changes.shape)}")
+    _, _, h, w = changes.shape
+    if period < 2 or h % period or w % period:
+        raise ValueError(f"the views ({w}x{h}) must be a multiple of the period ({period})")
+    x = changes.double()
+    x = x - x.mean(dim=(2, 3), keepdim=True)
+    power = torch.fft.fft2(x).abs().pow(2).mean(dim=(0, 1))  # [H,W] mean over views, channels
+    fy, fx = h // period, w // period
+    peaks, around = [], []
+    for i in range(period):
+        for j in range(period):
+            if i == 0 and j == 0:
+                continue
+            y, xx = i * fy, j * fx
+            peaks.append(power[y, xx])
+            ring = [
+                power[(y + dy) % h, (xx + dx) % w]
+                for dy in (-1, 0, 1)
+                for dx in (-1, 0, 1)
+                if (dy, dx) != (0, 0)
+            ]
+            around.append(torch.stack(ring).mean())
+    ratio = float(torch.stack(peaks).mean() / torch.stack(around).mean().clamp_min(1e-30))
+    return LatticeScore(ratio=ratio, period=period, views=changes.shape[0])
