@@ -32,10 +32,13 @@ def _add_config_args(parser: argparse.ArgumentParser, cls, skip: set[str]) -> No
 
 
 def cmd_curate(args: argparse.Namespace) -> int:
-    from prosplat.pipeline import ProSplat
+    from prosplat.pipeline import ProSplat, is_depthsplat_file
     from prosplat.train.curate import curate
 
-    model = ProSplat.from_pretrained(args.generator, improve=False)
+    if is_depthsplat_file(args.generator):  # stage 2 trained on DepthSplat's renders (issue 17)
+        model = ProSplat.from_pretrained(generator=args.generator, improve=False)
+    else:
+        model = ProSplat.from_pretrained(args.generator, improve=False)
     views = [int(v) for v in args.views.split(",")]
     cmd = "prosplat train curate " + " ".join(sys.argv[3:])
     if args.refine_steps < 0:
@@ -118,7 +121,9 @@ def add_train_parsers(train_sub) -> None:
     )
     cu.add_argument("--data", required=True, help="dataset folder of rendered scenes")
     cu.add_argument("--out", required=True, help="curated file to write (.safetensors)")
-    cu.add_argument("--generator", default=None, help="generator checkpoint (default: shipped)")
+    cu.add_argument("--generator", default=None,
+                    help="generator checkpoint (default: shipped); a DepthSplat .pth (released or "
+                    "fine-tuned by train generator --init) curates its renders")  # fmt: skip
     cu.add_argument(
         "--views", default="2,4", help="input-view counts, comma-separated (default 2,4)"
     )

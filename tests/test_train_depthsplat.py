@@ -134,3 +134,17 @@ def test_fine_tune_refuses_input_depth_supervision_and_a_foreign_run(
     ft = TrainConfig(**{**plain.__dict__, "init": str(released_file), "steps": 2})
     with pytest.raises(ValueError, match="new --out"):
         train(ft, progress=False)
+
+
+def test_curation_renders_a_depthsplat_generator(released_file, dataset, tmp_path) -> None:
+    """The improvement model trains on DepthSplat's renders: ``train curate --generator X.pth``
+    reconstructs with the DepthSplat checkpoint and stores its renders of the targets."""
+    from prosplat.train.curate import load_curated
+
+    out = tmp_path / "curated.safetensors"
+    _cli(["train", "curate", "--data", str(dataset), "--out", str(out), "--views", "2",
+          "--generator", str(released_file)])  # fmt: skip
+    data = load_curated(out)
+    assert data["render"].shape == (2, 3, 32, 32)  # 2 scenes x 1 target
+    assert float(data["alpha"].float().mean()) > 0.05  # the Gaussians cover the view
+    assert not torch.equal(data["render"], data["target"])
