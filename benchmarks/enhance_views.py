@@ -24,7 +24,6 @@ from pathlib import Path
 import torch
 
 from prosplat import ProSplat
-from prosplat.budget import prune_pixel_aligned
 from prosplat.data import find_scenes, load_scene
 from prosplat.data.scene import resize_views
 from prosplat.enhance import EnhanceOptions, departure, enhance, render_view
@@ -73,10 +72,9 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
             images, cams = resize_views(scene.images, scene.cameras, size)
             inp_images, inp_cams = images[idx], [cams[i] for i in idx]
             # as the pipeline runs it: at most the weights' trained size (--generator-size)
-            gen_images, gen_cams = model.generator_views(inp_images, inp_cams, args.generator_size)
-            with torch.no_grad():
-                out = model.reconstruct_full(gen_images, gen_cams, near, far)
-                g = prune_pixel_aligned(out.gaussians(0), out.depths[0], gen_cams)[0]
+            g = model.reconstruct_pruned(
+                inp_images, inp_cams, near, far, generator_height=args.generator_size
+            ).gaussians
             if args.flicker_frames and size == args.sizes[0]:
                 flicker_rows.append(
                     _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args)

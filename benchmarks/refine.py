@@ -25,7 +25,6 @@ from pathlib import Path
 
 import torch
 
-from prosplat.budget import prune_pixel_aligned
 from prosplat.data import find_scenes, load_scene
 from prosplat.data.scene import resize_views
 from prosplat.evaluate import pick_inputs
@@ -88,14 +87,11 @@ def sweep(args) -> None:
     for folder in folders:
         sc = load_scene(folder)
         imgs, cams, near, far, timgs, tcams = scene_inputs(sc, args.views, args.size)
-        gen_imgs, gen_cams = imgs, cams
-        if args.generator_size and args.generator_size < args.size:
-            gen_imgs, gen_cams, *_ = scene_inputs(sc, args.views, args.generator_size)
-        out = model.reconstruct_full(gen_imgs, gen_cams, near, far)
-        depths = out.depths[0]
-        g = prune_pixel_aligned(out.gaussians(0).detach(), depths, gen_cams)[0]
-        if gen_cams is not cams:
-            depths = None  # the depth term needs depth maps at the refined views' size
+        # 0: the generator at --size (this benchmark's default); N: at most N px high
+        pruned = model.reconstruct_pruned(
+            imgs, cams, near, far, generator_height=args.generator_size or 0
+        )
+        g, depths = pruned.gaussians, pruned.depths_for(imgs)
         for key, kw in (("pasted reference", dict(enhance=False, paste=True)),):
             for m, v in score(model, g, imgs, cams, timgs, tcams, **kw).items():
                 rows[key, False][m].append(v)
@@ -152,9 +148,8 @@ def profile(args) -> None:
     sc = load_scene(find_scenes(args.data[0])[0])
     for size in [int(s) for s in args.sizes.split(",")]:
         imgs, cams, near, far, _, _ = scene_inputs(sc, args.views, size)
-        out = model.reconstruct_full(imgs, cams, near, far)
-        depths = out.depths[0]
-        g = prune_pixel_aligned(out.gaussians(0).detach(), depths, cams)[0]
+        pruned = model.reconstruct_pruned(imgs, cams, near, far, generator_height=0)
+        g, depths = pruned.gaussians, pruned.depths
         refine(g, imgs, cams, steps=5, depths=depths)  # warm-up
         r = refine(g, imgs, cams, steps=args.profile_steps, depths=depths)
         print(
@@ -188,7 +183,7 @@ def main() -> None:
         "--generator-size",
         type=int,
         default=None,
-        help="run the generator at this size (below --size) and refine/render at --size",
+        help="run the generator at most this high (default: at --size) and refine/render at --size",
     )
     ap.add_argument("--steps", default="50,100,300")
     ap.add_argument("--seconds", default="", help="time budgets (s) run for each variant")

@@ -79,7 +79,6 @@ def score_cases(
     every case. ``enhanced`` rows need ``model.improver``; without one they are left out.
     ``reconstruct_kwargs`` (e.g. refinement) go to ``model.reconstruct``; without them the
     generator's Gaussians are pruned to ``budget`` as everywhere else."""
-    from prosplat.budget import prune_pixel_aligned
 
     rows: list[Score] = []
     for case in cases:
@@ -90,9 +89,7 @@ def score_cases(
             g = model.reconstruct(images, cams, case.near, case.far, **reconstruct_kwargs)
             g = g.detach()
         else:
-            gen_images, gen_cams = model.generator_views(images, cams)  # as the pipeline runs it
-            out = model.reconstruct_full(gen_images, gen_cams, case.near, case.far)
-            g = prune_pixel_aligned(out.gaussians(0), out.depths[0], gen_cams, budget=budget)[0]
+            g = model.reconstruct_pruned(images, cams, case.near, case.far, budget=budget).gaussians
         recon_s = time.perf_counter() - t0
         for gt, cam in zip(case.target_images, case.target_cameras, strict=True):
             t1 = time.perf_counter()

@@ -11,7 +11,9 @@ Checkpoints are safetensors files holding the generator's weights and, in the me
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -130,6 +132,26 @@ def is_depthsplat_file(path: str | Path | None) -> bool:
     worker's ``weights``) goes to ``from_pretrained(generator=...)``: decided by the suffix,
     which costs nothing and needs no torch.load of a file that may be 1.4 GB."""
     return path is not None and Path(str(path)).suffix.lower() in DEPTHSPLAT_SUFFIXES
+
+
+@dataclass
+class PrunedReconstruction:
+    """What :meth:`ProSplat.reconstruct_pruned` returns: the generator's Gaussians pruned to
+    the budget, with ``depths [V,h,w]`` the generator's depth per input view and ``cameras``
+    the inputs' cameras, both at the size the generator ran at; ``stats`` the pruning's counts
+    (``input``, ``kept``, ...) and the seconds of each part."""
+
+    gaussians: Gaussians
+    depths: Tensor
+    cameras: list[Camera]
+    stats: dict
+    generator_s: float
+    prune_s: float
+
+    def depths_for(self, images: Tensor) -> Tensor | None:
+        """``depths`` when they match ``images [V,3,H,W]`` in size (refinement's depth term
+        and MORI's occlusion test need maps at the images' size), else None."""
+        return self.depths if self.depths.shape[-2:] == images.shape[-2:] else None
 
 
 def _load_improver(improve: str | Path | bool | None):
@@ -410,6 +432,35 @@ class ProSplat:
 
         return resize_views(images, cameras, int(height))
 
+    def reconstruct_pruned(
+        self,
+        images: Tensor,
+        cameras: Sequence[Camera],
+        near: float | None = None,
+        far: float | None = None,
+        *,
+        budget: int | float | None = None,
+        generator_height: int | None = None,
+    ) -> PrunedReconstruction:
+        """The generator as the pipeline runs it, then the Gaussian budget: the generator at
+        most ``generator_height`` px high (:meth:`generator_views`; None: :attr:`trained_size`,
+        0: the inputs' size), its pixel-aligned Gaussians pruned (``budget``: a count, a
+        fraction, or None for the automatic budget) with the cameras at the size it ran at.
+        Every caller that wants pruned Gaussians comes here, so none can pair the generator's
+        depth maps with cameras of another size."""
+        from prosplat.budget import prune_pixel_aligned
+
+        t0 = time.perf_counter()
+        gen_images, gen_cameras = self.generator_views(images, cameras, generator_height)
+        out = self.reconstruct_full(gen_images, gen_cameras, near, far)
+        t1 = time.perf_counter()
+        depths = out.depths[0].detach()
+        g, _, stats = prune_pixel_aligned(
+            out.gaussians(0).detach(), depths, gen_cameras, budget=budget
+        )
+        return PrunedReconstruction(g, depths, gen_cameras, stats, t1 - t0,
+                                    time.perf_counter() - t1)  # fmt: skip
+
     def reconstruct_refined(
         self,
         images: Tensor,
@@ -441,9 +492,6 @@ class ProSplat:
             :class:`prosplat.refine.RefineResult` (``gaussians``, ``stats``); ``stats`` also
             carries ``generator_s`` and ``prune_s`` (seconds) and ``pruned_from`` (count).
         """
-        import time
-
-        from prosplat.budget import prune_pixel_aligned
         from prosplat.refine import check_images, refine
 
         check_images(images, list(cameras), "reconstruct")
@@ -451,18 +499,13 @@ class ProSplat:
             raise ValueError(
                 "give refine_steps or refine_seconds, not both (a step count or a time budget)"
             )
-        t0 = time.perf_counter()
         cameras = list(cameras)
-        gen_images, gen_cameras = self.generator_views(images, cameras, generator_height)
-        out = self.reconstruct_full(gen_images, gen_cameras, near, far)
-        t1 = time.perf_counter()
-        g, depths = out.gaussians(0).detach(), out.depths[0].detach()
-        pruned, _, _ = prune_pixel_aligned(g, depths, gen_cameras, budget=budget)
-        t2 = time.perf_counter()
-        if gen_images is not images:
-            depths = None  # the depth term needs maps at the refined images' size
+        pruned = self.reconstruct_pruned(
+            images, cameras, near, far, budget=budget, generator_height=generator_height
+        )
+        g = pruned.gaussians
         result = refine(
-            pruned,
+            g,
             images.to(g.means.device),
             cameras,
             steps=steps,
@@ -470,12 +513,12 @@ class ProSplat:
             seed=seed,
             progress=progress,
             cancel=cancel,
-            depths=depths,
+            depths=pruned.depths_for(images),
             options=options,
         )
-        result.stats.generator_s = t1 - t0
-        result.stats.prune_s = t2 - t1
-        result.stats.pruned_from = len(g)
+        result.stats.generator_s = pruned.generator_s
+        result.stats.prune_s = pruned.prune_s
+        result.stats.pruned_from = int(pruned.stats["input"])
         return result
 
     def render(

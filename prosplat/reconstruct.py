@@ -288,7 +288,6 @@ def load_model(args: argparse.Namespace):
 
 def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
     """(Gaussians, seconds, note): refinement when asked, else generator + budget pruning."""
-    from prosplat.budget import prune_pixel_aligned
 
     kwargs = refine_kwargs(model, args.refine_steps, args.refine_seconds)
     t0 = time.perf_counter()
@@ -296,14 +295,10 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
         g = model.reconstruct(images, cameras, near, far, **kwargs).detach()
         note = ", ".join(f"{k}={v}" for k, v in kwargs.items())
     else:
-        # as the pipeline runs it: the generator at most at its weights' trained size
-        gen_images, gen_cameras = model.generator_views(images, cameras)
-        out = model.reconstruct_full(gen_images, gen_cameras, near, far)
         budget = args.budget
         budget = None if budget is None else (int(budget) if budget > 1 else budget)
-        g, _, stats = prune_pixel_aligned(
-            out.gaussians(0), out.depths[0], gen_cameras, budget=budget
-        )
+        pruned = model.reconstruct_pruned(images, cameras, near, far, budget=budget)
+        g, stats = pruned.gaussians, pruned.stats
         note = f"budget kept {stats['kept']:,} of {stats['input']:,}"
     return g, time.perf_counter() - t0, note
 

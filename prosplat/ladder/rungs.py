@@ -247,16 +247,12 @@ def _generator_gaussians(ctx: LadderContext) -> Callable[[SceneInputs], Any]:
     """The generator's Gaussians as the pipeline makes them: run at most ``generator_size``
     px high (``--generator-size``; default the weights' trained size, 0 the evaluation
     size), pruned by the budget; they render at the evaluation size."""
-    from prosplat.budget import prune_pixel_aligned
 
     def reconstruct(inp: SceneInputs):
-        model = ctx.model
-        images, cameras = model.generator_views(
-            inp.images, inp.cameras, ctx.options.get("generator_size")
-        )
-        out = model.reconstruct_full(images, cameras, inp.near, inp.far)
-        g, depths = out.gaussians(0), out.depths[0]
-        return prune_pixel_aligned(g, depths, cameras, budget=ctx.options.get("budget"))[0]
+        return ctx.model.reconstruct_pruned(
+            inp.images, inp.cameras, inp.near, inp.far, budget=ctx.options.get("budget"),
+            generator_height=ctx.options.get("generator_size"),
+        ).gaussians  # fmt: skip
 
     return reconstruct
 

@@ -17,7 +17,6 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from prosplat.budget import prune_pixel_aligned
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import find_scenes
 from prosplat.data.scene import load_scene, resize_views
@@ -61,18 +60,22 @@ def curate_scene(
         idx = pick_inputs(scene, n)
         cams = [scene.cameras[i] for i in idx]
         near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
-        gen_images, gen_cams = model.generator_views(scene.images[idx], cams, generator_height)
-        full = model.reconstruct_full(gen_images, gen_cams, near, far)
-        gaussians = full.gaussians(0)
-        gen_depths = full.depths[0]  # [N,h,w] the generator's depth per input view
-        same_size = gen_images.shape[-2:] == scene.images.shape[-2:]
-        input_depths = gen_depths if same_size else None  # MORI's overlap needs input-size maps
+        images = scene.images[idx]
         if refine_steps:
-            gaussians = prune_pixel_aligned(gaussians.detach(), gen_depths, gen_cams)[0]
+            pruned = model.reconstruct_pruned(
+                images, cams, near, far, generator_height=generator_height
+            )
+            input_depths = pruned.depths_for(images)  # None when the generator ran smaller
             gaussians = refine(
-                gaussians, scene.images[idx], cams, steps=refine_steps, seed=seed,
+                pruned.gaussians, images, cams, steps=refine_steps, seed=seed,
                 depths=input_depths,
             ).gaussians  # fmt: skip
+        else:  # the generator's every pixel-aligned Gaussian, unpruned
+            gen_images, gen_cams = model.generator_views(images, cams, generator_height)
+            full = model.reconstruct_full(gen_images, gen_cams, near, far)
+            gaussians = full.gaussians(0)
+            same_size = gen_images.shape[-2:] == images.shape[-2:]
+            input_depths = full.depths[0] if same_size else None  # MORI needs input-size maps
         for t in scene.target_indices:
             cam = scene.cameras[t]
             with torch.no_grad():

@@ -167,7 +167,6 @@ def task_export_ply(params: dict, progress: Progress) -> dict:
 
 def task_reconstruct(params: dict, progress: Progress) -> dict:
     """Generator on the input views -> pruned Gaussians (point attributes, optional PLY)."""
-    from prosplat.budget import prune_pixel_aligned
 
     t0 = time.perf_counter()
     device = pick_device(params.get("device"))
@@ -186,23 +185,19 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
         cameras = [c.resized(w, h) for c in cameras]
     # the generator runs at the size its weights were trained at (its Gaussians render at any
     # size); refinement and the references use the inputs at the Input Size
-    gen_images, gen_cameras = model.generator_views(images, cameras)
-    gw, gh = gen_cameras[0].width, gen_cameras[0].height
-    progress(0.35, f"running the generator on {len(cameras)} views at {gw}x{gh}")
-    t1 = time.perf_counter()
-    out = model.reconstruct_full(
-        gen_images.to(device), gen_cameras, params.get("near"), params.get("far")
-    )
-    t_gen = time.perf_counter() - t1
-    progress(0.8, "pruning to the Gaussian budget")
-    g = out.gaussians(0).detach().to("cpu")
-    budget = params.get("budget") or None
-    g, _, stats = prune_pixel_aligned(g, out.depths[0].cpu(), gen_cameras, budget=budget)
+    progress(0.35, f"running the generator on {len(cameras)} views, then the Gaussian budget")
+    pruned = model.reconstruct_pruned(
+        images.to(device), cameras, params.get("near"), params.get("far"),
+        budget=params.get("budget") or None,
+    )  # fmt: skip
+    gw, gh = pruned.cameras[0].width, pruned.cameras[0].height
+    g, stats, t_gen = pruned.gaussians.to("cpu"), pruned.stats, pruned.generator_s
     if len(g) == 0:
         raise ValueError("the generator produced no visible Gaussians for these views")
     t_refine = 0.0
     if params.get("refine_steps") or params.get("refine_seconds"):
-        depths = out.depths[0].cpu() if (gw, gh) == (w, h) else None
+        depths = pruned.depths_for(images)
+        depths = None if depths is None else depths.cpu()
         g, t_refine = _refine(params, g, images, cameras, depths, progress)
     if params.get("ply"):
         from prosplat.ply import write_ply
@@ -333,8 +328,7 @@ def task_render(params: dict, progress: Progress) -> dict:
     g = _gaussians_from(params).to(device, torch.float32)
     out_dir.mkdir(parents=True, exist_ok=True)
     sequence = _sequence_of(targets)
-    suffixes = [".png"] + ["_raw.png"] * bool(params.get("save_raw") and enhance)
-    suffixes += ["_depth.exr"] * bool(params.get("save_depth"))
+    suffixes = _suffixes(params, enhance)
     prefix = None
     if sequence is not None:
         prefix = _sequence_prefix(out_dir, _safe_name(sequence[0]), sequence[1], suffixes)
@@ -358,6 +352,13 @@ def task_render(params: dict, progress: Progress) -> dict:
     return result
 
 
+def _suffixes(params: dict, enhance: bool) -> list[str]:
+    """The files one view writes: the image, the raw render when asked for and enhanced,
+    the depth when asked for."""
+    suffixes = [".png"] + ["_raw.png"] * bool(params.get("save_raw") and enhance)
+    return suffixes + ["_depth.exr"] * bool(params.get("save_depth"))
+
+
 def _render_and_save(model, g, cam, images, in_cams, enhance, params, progress, out_dir,
                      t, i, prefix, written, frames) -> dict:  # fmt: skip
     """One view: render (raw if enhancement fails), write its files, say what was written."""
@@ -371,8 +372,7 @@ def _render_and_save(model, g, cam, images, in_cams, enhance, params, progress, 
         progress.warn(f"enhancement unavailable ({e}); saved raw renders instead")
         enhance = False
         v = _render_one(model, g, cam, images, in_cams, False)
-    suffixes = [".png"] + ["_raw.png"] * bool(params.get("save_raw") and enhance)
-    suffixes += ["_depth.exr"] * bool(params.get("save_depth"))
+    suffixes = _suffixes(params, enhance)  # enhancement may have just fallen back to raw
     if prefix is not None:
         stem = f"{prefix}_{int(t['frame']):04d}"
     else:
