@@ -75,6 +75,8 @@ class PosedSet:
     #: depth bounds the file gives: view name -> (near, far) from per-frame ``near``/``far``,
     #: or the top-level pair under the key None (ProSplat's own scene folders write both)
     bounds: dict[str | None, tuple[float, float]] = field(default_factory=dict)
+    #: frames left out because their image file is missing (``skip_missing=True``)
+    missing: list[str] = field(default_factory=list)
 
     def file_near_far(self, indices: Sequence[int]) -> tuple[float, float] | None:
         """The file's depth range for these views (per-frame bounds, else the top-level
@@ -115,7 +117,19 @@ def _bounds(d: dict) -> tuple[float, float] | None:
     return (float(near), float(far)) if ok and 0 < near < far < float("inf") else None
 
 
-def load_posed_set(path: str | Path, images_dir: str | Path | None = None) -> PosedSet:
+def _missing_error(missing: list[tuple[str, str]], total: int, where: str) -> FileNotFoundError:
+    """The error for frames without an image: the first one, how many, and the ways out."""
+    image, name = missing[0]
+    more = f" ({len(missing)} of {total} frames have no image)" if len(missing) > 1 else ""
+    return FileNotFoundError(
+        f"image {image} of frame {name} in {where} is missing{more}; fix the file paths, pass "
+        "--images DIR, or --skip-missing to leave out the frames without images"
+    )
+
+
+def load_posed_set(
+    path: str | Path, images_dir: str | Path | None = None, skip_missing: bool = False
+) -> PosedSet:
     """Read posed frames from a transforms file or a COLMAP model and find their images.
 
     Args:
@@ -123,9 +137,15 @@ def load_posed_set(path: str | Path, images_dir: str | Path | None = None) -> Po
             (its folder, or a project folder with ``sparse/0``), text or binary.
         images_dir: where the images are, if not where the format says (COLMAP: ``images/``
             beside ``sparse/``; transforms: relative to the json).
+        skip_missing: leave out frames whose image file is missing (named in
+            :attr:`PosedSet.missing`) instead of raising. Published sets do this: instant-ngp's
+            fox ``transforms.json`` lists 67 frames for the 50 images in its folder. Off by
+            default, because a wrong ``--images`` folder or a typo would otherwise silently
+            shrink the set. With every image missing it still raises.
 
     Raises:
-        FileNotFoundError: nothing readable at ``path``, or a frame's image is missing.
+        FileNotFoundError: nothing readable at ``path``, or a frame's image is missing (every
+            frame's, with ``skip_missing``).
         ValueError: a malformed file (the message names the line or frame), no frames.
     """
     from prosplat.convert.colmap import read_colmap_model
@@ -143,16 +163,22 @@ def load_posed_set(path: str | Path, images_dir: str | Path | None = None) -> Po
         model = read_colmap_model(model_dir)
         dirs = _colmap_image_dirs(model_dir, images_dir)
         names = _unique_names([im.name for im in model.images])
-        views = []
+        views, missing = [], []
         for im, name in zip(model.images, names, strict=True):
             found = next((d / im.name for d in dirs if (d / im.name).is_file()), None)
             if found is None:
-                raise FileNotFoundError(
-                    f"image {im.name} of the COLMAP model {model_dir} is not in "
-                    f"{', '.join(str(d) for d in dirs[:3])}; pass --images DIR"
-                )
+                missing.append((im.name, name))
+                continue
             views.append(PosedView(name, found, im.camera, im.distortion))
-        observed = {n: model.observed[im.name] for im, n in zip(model.images, names, strict=True)}
+        if missing and (not skip_missing or not views):
+            where = f"the COLMAP model {model_dir} (looked in {', '.join(map(str, dirs[:3]))})"
+            raise _missing_error(missing, len(names), where)
+        left_out = {name for _, name in missing}
+        observed = {
+            n: model.observed[im.name]
+            for im, n in zip(model.images, names, strict=True)
+            if n not in left_out
+        }
         kind = "colmap binary" if model.binary else "colmap text"
         posed = PosedSet(views, model_dir, kind, model.points, observed)
     else:
@@ -165,15 +191,15 @@ def load_posed_set(path: str | Path, images_dir: str | Path | None = None) -> Po
         tf = read_transforms(json_path, allow_distortion=True)
         root = images_dir if images_dir is not None else json_path.parent
         names = _unique_names([f.file_path for f in tf.frames])
-        views = []
+        views, missing = [], []
         for f, name in zip(tf.frames, names, strict=True):
             found = _find_image(root, f.file_path)
             if found is None:
-                raise FileNotFoundError(
-                    f"image {root / f.file_path} of frame {name} in {json_path} is missing; "
-                    "fix file_path or pass --images DIR"
-                )
+                missing.append((str(root / f.file_path), name))
+                continue
             views.append(PosedView(name, found, f.camera, f.distortion))
+        if missing and (not skip_missing or not views):
+            raise _missing_error(missing, len(names), str(json_path))
         top = json.loads(json_path.read_text())
         synthetic = "camera_angle_x" in top and "fl_x" not in top
         bounds = {None: _bounds(tf.meta)} if _bounds(tf.meta) else {}
@@ -183,6 +209,7 @@ def load_posed_set(path: str | Path, images_dir: str | Path | None = None) -> Po
         posed = PosedSet(views, json_path, "transforms", nerf_synthetic=synthetic, bounds=bounds)
     if not posed.views:
         raise ValueError(f"{path} has no frames (no registered images); nothing to reconstruct")
+    posed.missing = [name for _, name in missing]
     return posed
 
 

@@ -60,6 +60,12 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder (new or empty)")
     p.add_argument("--images", type=Path, default=None, help="image folder, if not the usual")
     p.add_argument(
+        "--skip-missing",
+        action="store_true",
+        help="leave out frames whose image file is missing (named in the output) instead of "
+        "stopping; published sets list frames they do not ship",
+    )
+    p.add_argument(
         "--inputs",
         nargs="+",
         default=None,
@@ -265,7 +271,9 @@ def prepare(args: argparse.Namespace, keep_targets: int = 0):
     has fewer frames (leaving ``keep_targets`` frames as targets, but at least 2 inputs)."""
     from prosplat.posed_views import load_posed_set, model_size, pick_views, resolve_background
 
-    posed = load_posed_set(args.input, args.images)
+    posed = load_posed_set(args.input, args.images, skip_missing=args.skip_missing)
+    if posed.missing:
+        print(missing_note(posed))
     count = args.num_inputs
     if count is None:
         count = max(2, min(DEFAULT_INPUTS, len(posed.views) - keep_targets))
@@ -274,6 +282,15 @@ def prepare(args: argparse.Namespace, keep_targets: int = 0):
     first = posed.views[inputs[0]].camera
     size = model_size(first.width, first.height, args.size)
     return posed, inputs, background, bg_text, size
+
+
+def missing_note(posed) -> str:
+    """One line naming the frames ``--skip-missing`` left out (the first few)."""
+    shown = ", ".join(posed.missing[:5]) + (", ..." if len(posed.missing) > 5 else "")
+    return (
+        f"left out {len(posed.missing)} frames of {posed.source} whose images are missing "
+        f"({shown}); {len(posed.views)} frames remain"
+    )
 
 
 def load_model(args: argparse.Namespace):
@@ -376,6 +393,7 @@ def _write_report(result: ReconstructResult, posed, note: str, rows, args) -> No
         "",
         f"- input: `{posed.source}` ({posed.kind}, {len(posed.views)} frames; lens: "
         f"{', '.join(lens) + ' distortion, undistorted' if lens else 'pinhole'})",
+        *([f"- {missing_note(posed)} (`--skip-missing`)"] if posed.missing else []),
         f"- input views: {', '.join(result.inputs)}",
         f"- model resolution: {result.size[0]}x{result.size[1]}",
         f"- background for RGBA: {result.background}",

@@ -18,6 +18,7 @@ from prosplat.convert.nerfstudio import read_transforms
 from prosplat.evaluate_posed import ROWS, PosedCase, score_cases
 from prosplat.image_io import read_image
 from prosplat.metrics import psnr
+from prosplat.posed_views import load_posed_set, pick_views
 from prosplat.reconstruct import refine_kwargs
 
 LENS = Distortion("opencv", k1=-0.2, k2=0.05, p1=0.002, p2=-0.001)
@@ -132,6 +133,41 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys, how, match):
     assert cli("reconstruct", path, "--out", tmp_path / "out", "--size", "32", *extra) == 2
     assert match in _one_line_error(capsys, "reconstruct")
     assert not (tmp_path / "out").exists()  # nothing written on bad input
+
+
+def test_missing_images_are_skipped_only_when_asked(tmp_path, colmap_text, capsys):
+    """instant-ngp's fox lists 67 frames for its 50 images: --skip-missing leaves such frames
+    out and names them; without it the one-line error says how many and points to the flag."""
+    path = write_transforms_set(tmp_path / "set", scene_cameras(5, 32, 32))
+    for name in ("001.png", "003.png"):
+        (tmp_path / "set" / "images" / name).unlink()
+    capsys.readouterr()
+    assert cli("reconstruct", path, "--out", tmp_path / "a", "--size", "32") == 2
+    err = _one_line_error(capsys, "reconstruct")
+    assert "2 of 5 frames have no image" in err and "--skip-missing" in err
+    out = tmp_path / "b"
+    assert cli("reconstruct", path, "--out", out, "--size", "32", "--skip-missing",
+               "--num-inputs", "2", "--render", "all") == 0  # fmt: skip
+    assert "left out 2 frames" in capsys.readouterr().out
+    report = (out / "report.md").read_text()
+    assert "left out 2 frames" in report and "(001, 003)" in report
+    renders = sorted(p.name for p in (out / "renders").iterdir())
+    kept = ("000", "002", "004")
+    assert renders == sorted(f"{i}_{k}.png" for i in kept for k in ("raw", "enhanced"))
+    with pytest.raises(ValueError, match="no frame named '003'"):  # a left-out frame is gone
+        pick_views(load_posed_set(path, skip_missing=True), ["003", "000"])
+
+    proj = write_colmap_project(tmp_path / "proj", scene_cameras(4, 32, 32))
+    (proj / "images" / "002.png").unlink()
+    with pytest.raises(FileNotFoundError, match="002.png .*--skip-missing"):
+        load_posed_set(proj)
+    posed = load_posed_set(proj, skip_missing=True)
+    assert posed.names == ["000", "001", "003"] and posed.missing == ["002"]
+    assert set(posed.observed) == {"000", "001", "003"}
+    for name in ("000", "001", "003"):
+        (proj / "images" / f"{name}.png").unlink()
+    with pytest.raises(FileNotFoundError, match="4 of 4 frames"):  # nothing left: still an error
+        load_posed_set(proj, skip_missing=True)
 
 
 def test_refine_flags_are_passed_only_when_given():
