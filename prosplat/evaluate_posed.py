@@ -3,12 +3,18 @@
 The input views (picked as ``prosplat reconstruct`` picks them) are reconstructed once; every
 other frame (``--targets`` of them, evenly spread; or the frames of ``--target-set``, another
 file in the same world frame such as NeRF synthetic's ``transforms_test.json``) is a target,
-read, undistorted and resized the same way, and four predictions are scored against it with
+read, undistorted and resized the same way, and the predictions are scored against it with
 PSNR / SSIM / LPIPS (:mod:`prosplat.metrics`):
 
 * ``flat``: one colour everywhere, the mean colour of the input images;
 * ``paste``: the input MORI picks as the reference, resampled to the target's size, as is;
-* ``generator``: the generator's render; ``enhanced``: that render after stage 2.
+* ``generator``: the generator's render; ``enhanced``: that render after stage 2;
+* with ``--refine-steps`` / ``--refine-seconds``, also ``refined`` and ``refined enhanced``:
+  the same generator Gaussians refined against the inputs, so one run shows what refinement
+  buys on the user's own images (the ladder's rows, on data no ProSplat scene generator made).
+
+``views.png`` shows the first targets side by side (ground truth, then each row's image), so
+the numbers can be checked by eye.
 
 :func:`score_cases` takes plain tensors (a list of :class:`PosedCase`), so the same rows can
 come from any source of posed views.
@@ -29,9 +35,19 @@ from torch import Tensor
 from prosplat.camera import Camera
 from prosplat.evaluate import Score, markdown_table, score_view, summarise
 
-__all__ = ["ROWS", "PosedCase", "add_arguments", "run", "score_cases", "write_results"]
+__all__ = [
+    "ROWS",
+    "PosedCase",
+    "add_arguments",
+    "contact_sheet",
+    "run",
+    "score_cases",
+    "write_results",
+]
 
-ROWS = ("flat", "paste", "generator", "enhanced")
+ROWS = ("flat", "paste", "generator", "enhanced", "refined", "refined enhanced")
+#: targets shown in ``views.png``
+SHEET_TARGETS = 8
 
 
 class PosedCase(NamedTuple):
@@ -74,41 +90,60 @@ def score_cases(
     background: Tensor | None = None,
     reconstruct_kwargs: dict | None = None,
     dtype: torch.dtype = torch.float32,
+    sheet: list[list[Tensor]] | None = None,
 ) -> list[Score]:
     """Scores (:class:`prosplat.evaluate.Score`, ``method`` in :data:`ROWS`) of every target of
-    every case. ``enhanced`` rows need ``model.improver``; without one they are left out.
-    ``reconstruct_kwargs`` (e.g. refinement) go to ``model.reconstruct``; without them the
-    generator's Gaussians are pruned to ``budget`` as everywhere else."""
+    every case. The generator's Gaussians are pruned to ``budget`` as everywhere else;
+    ``reconstruct_kwargs`` (refinement: ``refine_steps`` or ``refine_seconds``) add the
+    ``refined`` rows, from ``model.reconstruct``. ``enhanced`` rows need ``model.improver``;
+    without one they are left out. ``sheet``, when given, receives one list of images per
+    target (ground truth, then each prediction in :data:`ROWS` order) for a contact sheet."""
 
     rows: list[Score] = []
+    enhance = model.improver is not None
     for case in cases:
         images, cams = case.images, list(case.cameras)
         n = len(cams)
         t0 = time.perf_counter()
+        pruned = model.reconstruct_pruned(images, cams, case.near, case.far, budget=budget)
+        recons = [("generator", "enhanced", pruned.gaussians, time.perf_counter() - t0)]
         if reconstruct_kwargs:
+            t0 = time.perf_counter()
             g = model.reconstruct(images, cams, case.near, case.far, **reconstruct_kwargs)
-            g = g.detach()
-        else:
-            g = model.reconstruct_pruned(images, cams, case.near, case.far, budget=budget).gaussians
-        recon_s = time.perf_counter() - t0
+            recons.append(("refined", "refined enhanced", g.detach(), time.perf_counter() - t0))
         for gt, cam in zip(case.target_images, case.target_cameras, strict=True):
             t1 = time.perf_counter()
             flat = flat_prediction(images, cam)
             t2 = time.perf_counter()
             pasted, _ = paste_prediction(images, cams, cam)
             t3 = time.perf_counter()
-            view = model.render(g, cam, images, cams, enhance=model.improver is not None,
-                                background=background, dtype=dtype)  # fmt: skip
-            t = view.timings
             preds = [("flat", flat, 0.0, 1e3 * (t2 - t1), 0),
-                     ("paste", pasted, 0.0, 1e3 * (t3 - t2), 0),
-                     ("generator", view.raw, recon_s, t["render_ms"], len(g))]  # fmt: skip
-            if model.improver is not None:
-                ms = t["render_ms"] + t["mori_ms"] + t["enhance_ms"]
-                preds.append(("enhanced", view.image, recon_s, ms, len(g)))
+                     ("paste", pasted, 0.0, 1e3 * (t3 - t2), 0)]  # fmt: skip
+            for raw_name, enhanced_name, g, recon_s in recons:
+                view = model.render(g, cam, images, cams, enhance=enhance,
+                                    background=background, dtype=dtype)  # fmt: skip
+                t = view.timings
+                preds.append((raw_name, view.raw, recon_s, t["render_ms"], len(g)))
+                if enhance:
+                    ms = t["render_ms"] + t["mori_ms"] + t["enhance_ms"]
+                    preds.append((enhanced_name, view.image, recon_s, ms, len(g)))
             for method, pred, rs, ms, count in preds:
                 rows.append(score_view(method, n, "held-out", case.name, pred, gt, rs, ms, count))
+            if sheet is not None and len(sheet) < SHEET_TARGETS:
+                sheet.append([gt] + [pred for _, pred, *_ in preds])
     return rows
+
+
+def contact_sheet(sheet: list[list[Tensor]], gap: int = 2) -> Tensor:
+    """One image [3,H',W'] of ``sheet`` (rows of same-sized [3,H,W] images) on white."""
+    h, w = sheet[0][0].shape[-2:]
+    cols = max(len(r) for r in sheet)
+    out = torch.ones(3, len(sheet) * (h + gap) - gap, cols * (w + gap) - gap)
+    for i, row in enumerate(sheet):
+        for j, img in enumerate(row):
+            top, left = i * (h + gap), j * (w + gap)
+            out[:, top : top + h, left : left + w] = img.detach().float().clamp(0, 1).cpu()
+    return out
 
 
 def write_results(rows: list[Score], out: Path, overwrite: bool = False) -> str:
@@ -154,6 +189,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from prosplat.image_io import write_image
     from prosplat.posed_views import load_posed_set, load_views
     from prosplat.reconstruct import (
         load_model,
@@ -189,9 +225,11 @@ def run(args: argparse.Namespace) -> int:
         case = PosedCase(images, cameras, t_images, t_cams, near, far, name or "posed")
         budget = args.budget
         budget = None if budget is None else (int(budget) if budget > 1 else budget)
+        sheet: list[list[Tensor]] = []
         rows = score_cases(model, [case], budget=budget, background=background,
-                           reconstruct_kwargs=kwargs)  # fmt: skip
+                           reconstruct_kwargs=kwargs, sheet=sheet)  # fmt: skip
         table = write_results(rows, out, args.overwrite)
+        write_image(out / "views.png", contact_sheet(sheet), overwrite=args.overwrite)
     except (ValueError, FileNotFoundError, FileExistsError) as e:
         print(f"prosplat eval posed: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
@@ -203,5 +241,9 @@ def run(args: argparse.Namespace) -> int:
         f"{bg_text}"
     )
     print(table)
-    print(f"wrote {out / 'summary.md'}, scores.csv and scores.json")
+    shown = [m for m in ROWS if f"| {m} |" in table]
+    print(
+        f"wrote {out / 'summary.md'}, scores.csv, scores.json and views.png (the first "
+        f"{len(sheet)} targets: ground truth, {', '.join(shown)})"
+    )
     return 0

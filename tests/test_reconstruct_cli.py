@@ -196,20 +196,32 @@ def test_refine_flag_on_the_installed_pipeline(colmap_text, tmp_path, capsys):
         assert "no refinement stage" in _one_line_error(capsys, "reconstruct")
 
 
-def test_eval_posed_scores_four_rows(colmap_text, tmp_path, capsys):
+def test_eval_posed_scores_the_rows_and_shows_them(colmap_text, tmp_path, capsys):
     out = tmp_path / "eval"
     assert cli("eval", "posed", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
                "--targets", "2") == 0  # fmt: skip
+    plain = ROWS[:4]  # flat, paste, generator, enhanced: no refinement asked for
     table = capsys.readouterr().out
     for row in ROWS:
-        assert f"| {row} |" in table
+        assert (f"| {row} |" in table) == (row in plain), row
     rows = list(csv.DictReader(open(out / "scores.csv")))
-    assert len(rows) == 2 * len(ROWS)
+    assert len(rows) == 2 * len(plain)
     assert all(0 < float(r["psnr"]) < 100 and 0 <= float(r["lpips"]) for r in rows)
     summary = json.loads((out / "scores.json").read_text())["summary"]
-    assert [s["method"] for s in summary] == list(ROWS)
+    assert [s["method"] for s in summary] == list(plain)
     assert (out / "summary.md").read_text().strip() in table
+    # views.png: 2 targets x (ground truth + 4 rows) of 32x32 with 2-px gaps
+    assert read_image(out / "views.png").shape == (3, 2 * 34 - 2, 5 * 34 - 2)
     assert cli("eval", "posed", colmap_text, "--out", out, "--size", "32") == 2  # never clobbers
+
+    out = tmp_path / "refined"
+    assert cli("eval", "posed", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
+               "--targets", "1", "--refine-steps", "3") == 0  # fmt: skip
+    summary = json.loads((out / "scores.json").read_text())["summary"]
+    by = {s["method"]: s for s in summary}
+    assert list(by) == list(ROWS)
+    assert by["refined"]["recon_s"] > 0 and by["refined"]["gaussians"] > 0
+    assert read_image(out / "views.png").shape == (3, 32, 7 * 34 - 2)
 
 
 def test_score_cases_flat_and_paste_rows():
@@ -270,7 +282,7 @@ def test_eval_posed_with_a_separate_target_set(tmp_path, capsys):
     assert cli("eval", "posed", train, "--out", out, "--size", "32", "--num-inputs", "3",
                "--target-set", test) == 0  # fmt: skip
     rows = list(csv.DictReader(open(out / "scores.csv")))
-    assert len(rows) == 2 * len(ROWS) and {r["views"] for r in rows} == {"3"}
+    assert len(rows) == 2 * 4 and {r["views"] for r in rows} == {"3"}
     capsys.readouterr()
     assert cli("eval", "posed", train, "--out", tmp_path / "e2", "--size", "32",
                "--num-inputs", "3") == 2  # no held-out frame left, and no target set  # fmt: skip
