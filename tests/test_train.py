@@ -69,6 +69,7 @@ def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
     assert all(torch.isfinite(torch.tensor(r["loss"])) for r in log)
     assert "val_psnr" in log[-1] and log[-1]["val_psnr"] > 5
     pipe = ProSplat.from_pretrained(ckpt)
+    assert pipe.trained_size == 32  # the data's size: the pipeline runs the weights there
     sc_images = torch.rand(2, 3, 32, 32)
     from prosplat.demo_scene import orbit_cameras
 

@@ -428,16 +428,20 @@ def _step_view(batch: dict[str, Tensor], cfg: TrainConfig, step: int) -> dict[st
     return resize_batch(batch, size)
 
 
-def _weights_metadata(pipe) -> dict[str, str]:
+def _weights_metadata(pipe, trained_size: int | None = None) -> dict[str, str]:
     """The metadata ``ProSplat.save`` writes, so a training checkpoint loads with
-    ``ProSplat.from_pretrained`` like any other."""
+    ``ProSplat.from_pretrained`` like any other; ``trained_size`` (the largest image height
+    trained at) makes the pipeline run the weights at that size (``ProSplat.trained_size``)."""
     from prosplat.pipeline import CHECKPOINT_FORMAT
 
-    return {
+    meta = {
         "format": CHECKPOINT_FORMAT,
         "config": pipe.config.to_json(),
         "parameters": json.dumps(pipe.generator.num_parameters()),
     }
+    if trained_size:
+        meta["trained_size"] = str(int(trained_size))
+    return meta
 
 
 def train(cfg: TrainConfig, model_config=None, progress: bool = True) -> Path:
@@ -550,6 +554,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             batch = _to(batch, device)
             if cfg.size_choices:  # a size per step, seeded apart from the view count's draw
                 batch = _step_view(batch, cfg, step)
+            # the size the weights are for: the largest drawn, else the data's own
+            pipe.trained_size = max(cfg.size_choices or (int(batch["input_images"].shape[-2]),))
             for group in opt.param_groups:
                 group["lr"] = lr_at(step, cfg)
             output = ddp_model(*_model_inputs(batch))
@@ -605,7 +611,7 @@ def _save(pipe, opt, step: int, out: Path) -> None:
         step,
         pipe.generator.state_dict(),
         {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()},
-        metadata=_weights_metadata(pipe),
+        metadata=_weights_metadata(pipe, pipe.trained_size),
     )
 
 
