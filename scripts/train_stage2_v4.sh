@@ -5,7 +5,7 @@
 # render's alpha as an input, 48-px crops, flips, LPIPS weight 0.1), lr 5e-4, 8,000 steps,
 # batches from the four curated sets in turn.
 # Why from scratch: every model fine-tuned from v1 (v2, v3, v3b) kept v1's habit of painting
-# green-and-yellow blobs where the render is blurry; v4 has no fixed pattern (BENCHMARKS,
+# green-and-yellow blobs where the render is blurry; v4 stamps no blobs (BENCHMARKS,
 # "Stage 2 v4").
 # Resumable: finished curated sets are kept, and re-running continues the run (raise STEPS to
 # train on; the run folder keeps its optimizer state).
