@@ -554,8 +554,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             batch = _to(batch, device)
             if cfg.size_choices:  # a size per step, seeded apart from the view count's draw
                 batch = _step_view(batch, cfg, step)
-            # the size the weights are for: the largest drawn, else the data's own
-            pipe.trained_size = max(cfg.size_choices or (int(batch["input_images"].shape[-2]),))
+            if pipe is not None:  # the size the weights are for: the largest drawn, else the data's
+                pipe.trained_size = max(cfg.size_choices or (int(batch["input_images"].shape[-2]),))
             for group in opt.param_groups:
                 group["lr"] = lr_at(step, cfg)
             output = ddp_model(*_model_inputs(batch))
