@@ -4,7 +4,8 @@
 #   val128   8 validation scenes, 128 px, 16 views each (6 inputs + 10 targets)
 #   test128  6 hard + 18 family test scenes (seeds 950100-5, 987000-17), 128 px, 6 inputs +
 #            8 targets (evaluated at 64 and 128)
-#   test256  the first 6 family test scenes again at 256 px (evaluated at 256)
+#   test256  the first 6 family test scenes again at 256 px (evaluated at 256); with ALL256=1
+#            all 24 test scenes
 #   train128 training scenes, 128 px, 16 views each, in rounds of 60 family scenes + 2 of
 #            each hard scene, so a run stopped at any point has every kind
 # Colour: 16 samples + Cycles' denoiser: 36.5 dB against a 512-sample render, where 16 samples
@@ -27,6 +28,15 @@ for s in $HARD; do
 done
 $R --seed 987000 --count 18 --size 128 --inputs 6 --targets 8 --out data/test128
 $R --seed 987000 --count 6 --size 256 --inputs 6 --targets 8 --out data/test256
+[ "${ALL256:-0}" = 1 ] || exit 0
+# ALL256=1: the other 18 test scenes at 256 px too (issue 14: every family and hard scene at
+# 64, 128 and 256 px), the first 6 family scenes first so a stopped run still has them
+$R --seed 987006 --count 12 --size 256 --inputs 6 --targets 8 --out data/test256
+seed=950100
+for s in $HARD; do
+  $R --seed $seed --count 1 --scene $s --size 256 --inputs 6 --targets 8 --out data/test256
+  seed=$((seed + 1))
+done
 exit 0
 fi
 for round in $(seq 0 $((${2:-40} - 1))); do
