@@ -19,24 +19,23 @@ SAMPLES=${SAMPLES:-16}
 HARD="textureless specular near_far thin_structures repeated_pattern inside_outside"
 R="$P scenes render --samples $SAMPLES --denoise --workers ${WORKERS:-2}"
 part=${1:?usage: render_v2_data.sh eval|train [ROUNDS]}
+hard_tests() {  # SIZE OUT: the 6 hard test scenes, seeds 950100-5
+  local seed=950100 s
+  for s in $HARD; do
+    $R --seed $seed --count 1 --scene $s --size $1 --inputs 6 --targets 8 --out $2
+    seed=$((seed + 1))
+  done
+}
 if [ "$part" = eval ]; then
 $R --seed 900000 --count 8 --size 128 --inputs 6 --targets 10 --out data/val128
-seed=950100
-for s in $HARD; do
-  $R --seed $seed --count 1 --scene $s --size 128 --inputs 6 --targets 8 --out data/test128
-  seed=$((seed + 1))
-done
+hard_tests 128 data/test128
 $R --seed 987000 --count 18 --size 128 --inputs 6 --targets 8 --out data/test128
 $R --seed 987000 --count 6 --size 256 --inputs 6 --targets 8 --out data/test256
 [ "${ALL256:-0}" = 1 ] || exit 0
 # ALL256=1: the other 18 test scenes at 256 px too (issue 14: every family and hard scene at
 # 64, 128 and 256 px), the first 6 family scenes first so a stopped run still has them
 $R --seed 987006 --count 12 --size 256 --inputs 6 --targets 8 --out data/test256
-seed=950100
-for s in $HARD; do
-  $R --seed $seed --count 1 --scene $s --size 256 --inputs 6 --targets 8 --out data/test256
-  seed=$((seed + 1))
-done
+hard_tests 256 data/test256
 exit 0
 fi
 for round in $(seq 0 $((${2:-40} - 1))); do

@@ -7,25 +7,13 @@
 # continues the run in runs/s2v3/run.
 #   scripts/train_stage2_v3.sh [STEPS]   (default 3000; INIT= another starting file,
 #   LPIPS= the LPIPS weight (default 0.1), RUN= the run folder under runs/s2v3 (default run))
-# Data: data/train128 (scripts/render_v2_data.sh train 2) and data/val128 (... eval).
+# Data: data/train128 (scripts/render_v2_data.sh train 2) and data/val128 (... eval), curated
+# by scripts/curate_stage2_sets.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
 OUT=runs/s2v3
-mkdir -p $OUT
-curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
-  [ -f $OUT/$1.safetensors ] || $P train curate --data $2 --out $OUT/$1.safetensors --views $3 \
-    --size $4 --generator-size 64 --refine-steps $5
-}
-curate raw64 data/train128 2,3,4,6 64 0 &
-curate ref128 data/train128 2,4 128 300
-wait
-curate raw128 data/train128 2,4 128 0 &
-curate ref64 data/train128 2,4 64 300
-wait
-curate val_ref128 data/val128 4 128 300 &
-curate val_raw64 data/val128 2,4 64 0
-wait
+scripts/curate_stage2_sets.sh $OUT
 $P train improve --data $OUT/raw64.safetensors,$OUT/ref64.safetensors,$OUT/raw128.safetensors,$OUT/ref128.safetensors \
   --val $OUT/val_ref128.safetensors --out $OUT/${RUN:-run} \
   --init "${INIT:-prosplat/weights/improve_tiny.safetensors}" --padding replicate --alpha --crop 48 \

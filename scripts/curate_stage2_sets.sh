@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The curated stage-2 training sets that scripts/train_stage2_v3.sh and train_stage2_v4.sh both
+# train on: what the pipeline renders, the shipped generator run at 64 px (its trained size) and
+# its Gaussians seen at 64 and 128 px, raw and refined (prosplat.refine, 300 steps):
+#   raw64 (2/3/4/6 inputs), ref64, raw128, ref128 (2/4 inputs) from data/train128;
+#   val_ref128 (4 inputs) and val_raw64 (2/4) from data/val128.
+# Finished sets are kept, so re-running only makes what is missing (~25 min on 2 cores from
+# nothing, two curations at a time).
+#   scripts/curate_stage2_sets.sh [DIR]   (default runs/s2v3)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+P=${PROSPLAT:-.venv/bin/prosplat}
+DIR=${1:-runs/s2v3}
+mkdir -p "$DIR"
+curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
+  [ -f "$DIR/$1.safetensors" ] || $P train curate --data $2 --out "$DIR/$1.safetensors" \
+    --views $3 --size $4 --generator-size 64 --refine-steps $5
+}
+curate raw64 data/train128 2,3,4,6 64 0 &
+curate ref128 data/train128 2,4 128 300
+wait
+curate raw128 data/train128 2,4 128 0 &
+curate ref64 data/train128 2,4 64 300
+wait
+curate val_ref128 data/val128 4 128 300 &
+curate val_raw64 data/val128 2,4 64 0
+wait
