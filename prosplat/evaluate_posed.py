@@ -193,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
     from prosplat.posed_views import load_posed_set, load_views
     from prosplat.reconstruct import (
         load_model,
+        missing_note,
         near_far,
         out_folder,
         prepare,
@@ -204,11 +205,11 @@ def run(args: argparse.Namespace) -> int:
         out = out_folder(args.out, args.overwrite)
         keep = 0 if args.target_set else 1
         posed, inputs, background, bg_text, size = prepare(args, keep_targets=keep)
-        target_set = (
-            load_posed_set(args.target_set, None, skip_missing=args.skip_missing)
-            if args.target_set
-            else posed
-        )
+        target_set = posed
+        if args.target_set:
+            target_set = load_posed_set(args.target_set, None, skip_missing=args.skip_missing)
+            if target_set.missing:
+                print(missing_note(target_set))
         held_out = [] if args.target_set else inputs
         targets = render_selection(target_set.names, held_out, ["held-out"], args.targets)
         if not targets:

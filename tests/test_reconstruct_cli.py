@@ -287,3 +287,9 @@ def test_eval_posed_with_a_separate_target_set(tmp_path, capsys):
     assert cli("eval", "posed", train, "--out", tmp_path / "e2", "--size", "32",
                "--num-inputs", "3") == 2  # no held-out frame left, and no target set  # fmt: skip
     assert "--target-set" in _one_line_error(capsys, "eval posed")
+    # a target set's frames without images are left out and named too (--skip-missing)
+    (tmp_path / "test" / "images" / "001.png").unlink()
+    assert cli("eval", "posed", train, "--out", tmp_path / "e3", "--size", "32", "--num-inputs",
+               "3", "--target-set", test, "--skip-missing") == 0  # fmt: skip
+    assert "left out 1 frames" in capsys.readouterr().out
+    assert len(list(csv.DictReader(open(tmp_path / "e3" / "scores.csv")))) == 1 * 4
