@@ -496,6 +496,22 @@ def build_parser() -> argparse.ArgumentParser:
         "default: the data's size)",
     )
     tg.add_argument(
+        "--stop-at",
+        type=int,
+        default=None,
+        help="stop after this step with a checkpoint, the learning-rate schedule still "
+        "following --steps: a long run taken in bounded parts (re-run with a later "
+        "--stop-at, or none, to go on)",
+    )
+    tg.add_argument(
+        "--target-scale",
+        type=int,
+        default=defaults.target_scale,
+        help="render the targets at this multiple of the step's size (at most the data's), "
+        "e.g. 2 with --sizes 64 on 128-px data: Gaussians made at 64 px that also cover a "
+        "128-px camera, as the pipeline renders them (default 1)",
+    )
+    tg.add_argument(
         "--any-view",
         action="store_true",
         help="draw inputs and targets from all of a scene's views, not its input/target split",

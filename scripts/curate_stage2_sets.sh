@@ -6,7 +6,7 @@
 #   val_ref128 (4 inputs) and val_raw64 (2/4) from data/val128.
 # Finished sets are kept, so re-running only makes what is missing (~25 min on 2 cores from
 # nothing, two curations at a time).
-#   scripts/curate_stage2_sets.sh [DIR]   (default runs/s2v3)
+#   scripts/curate_stage2_sets.sh [DIR]   (default runs/s2v3; GEN= another generator checkpoint)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -14,7 +14,7 @@ DIR=${1:-runs/s2v3}
 mkdir -p "$DIR"
 curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
   [ -f "$DIR/$1.safetensors" ] || $P train curate --data $2 --out "$DIR/$1.safetensors" \
-    --views $3 --size $4 --generator-size 64 --refine-steps $5
+    --views $3 --size $4 --generator-size 64 --refine-steps $5 ${GEN:+--generator "$GEN"}
 }
 curate raw64 data/train128 2,3,4,6 64 0 &
 curate ref128 data/train128 2,4 128 300

@@ -13,7 +13,7 @@ from prosplat.data.dataset import ItemKey
 from prosplat.data.packed import Pack, pack_scenes
 from prosplat.data.scene import load_scene
 from prosplat.metrics import psnr
-from prosplat.train.generator import crop_batch, resize_batch, train_sizes
+from prosplat.train.generator import TrainConfig, _step_view, crop_batch, resize_batch, train_sizes
 
 
 @pytest.fixture(scope="module")
@@ -112,6 +112,55 @@ def test_resize_batch_keeps_geometry_and_drops_depth_edges():
     assert torch.allclose(flat["input_images"], torch.tensor(0.25), atol=1e-6)
     with pytest.raises(ValueError, match="render larger"):
         resize_batch(batch, 128)
+
+
+def _square_batch(h: int, v: int = 2) -> dict[str, torch.Tensor]:
+    images = torch.rand(1, v, 3, h, h)
+    K = torch.tensor([[50.0, 0, h / 2], [0, 50, h / 2], [0, 0, 1]]).expand(1, v, 3, 3)
+    depth = torch.full((1, v, h, h), 3.0)
+    return {
+        "input_images": images,
+        "target_images": images.flip(-1),
+        "input_depths": depth,
+        "target_depths": depth,
+        "input_K": K,
+        "target_K": K.clone(),
+    }
+
+
+def test_targets_at_a_multiple_of_the_input_size():
+    """target_scale: inputs at the step's size, targets at k x it (at most the data's), each
+    group's intrinsics and depth following its own size; a crop takes the targets' window."""
+    batch = _square_batch(128)
+    out = resize_batch(batch, 32, 64)
+    assert out["input_images"].shape[-2:] == (32, 32) and out["input_depths"].shape[-2:] == (32, 32)
+    assert out["target_images"].shape[-2:] == (64, 64) and out["target_depths"].shape[-2:] == (
+        64,
+        64,
+    )
+    assert torch.allclose(out["input_K"][0, 0, 0], torch.tensor([12.5, 0, 16]))
+    assert torch.allclose(out["target_K"][0, 0, 0], torch.tensor([25.0, 0, 32]))
+    # the targets are the same pixels as a plain downsample to 64
+    assert torch.equal(out["target_images"], resize_batch(batch, 64)["target_images"])
+    with pytest.raises(ValueError, match="render larger"):
+        resize_batch(batch, 64, 256)
+
+    cfg = TrainConfig(data="", out="", sizes="32", target_scale=2)
+    view = _step_view(batch, cfg, step=0)
+    assert view["input_images"].shape[-1] == 32 and view["target_images"].shape[-1] == 64
+    # a scale beyond the data stops at the data's size
+    view = _step_view(batch, TrainConfig(data="", out="", sizes="64", target_scale=4), step=0)
+    assert view["input_images"].shape[-1] == 64 and view["target_images"].shape[-1] == 128
+    assert torch.equal(view["target_K"], batch["target_K"])
+    # crops: a 64-px window at the data's scale for the targets, its 32-px downsample for inputs
+    cropped = _step_view(
+        batch, TrainConfig(data="", out="", sizes="32", target_scale=2, crop_prob=1.0), 0
+    )
+    assert cropped["target_images"].shape[-1] == 64 and cropped["input_images"].shape[-1] == 32
+    K_t, K_i = cropped["target_K"][0, 0], cropped["input_K"][0, 0]
+    assert K_t[0, 0] == 50.0 and torch.allclose(K_i[:2, :3], K_t[:2, :3] / 2)
+    with pytest.raises(ValueError, match="target_scale"):
+        TrainConfig(data="", out="", target_scale=0)
 
 
 def test_train_sizes_parse_and_refuse_bad_values():

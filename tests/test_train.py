@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -81,6 +82,37 @@ def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
     steps = [json.loads(line)["step"] for line in (out / "log.jsonl").read_text().splitlines()]
     assert steps == [1, 2, 3, 4, 5]
     assert torch.load(out / "state.pt", weights_only=True)["step"] == 5
+
+
+def test_stop_at_takes_a_run_in_parts_with_the_same_result(dataset, tmp_path):
+    """--stop-at 2 then the same run to its end gives the weights (and learning rates) of one
+    uninterrupted run: the schedule follows --steps in both."""
+    from prosplat.checkpoints import read_checkpoint
+
+    base = dict(
+        data=str(dataset),
+        steps=4,
+        inputs=2,
+        targets=1,
+        lpips_weight=0.0,
+        log_every=1,
+        save_every=10,
+        warmup=1,
+    )
+    whole = train(TrainConfig(**base, out=str(tmp_path / "whole")), progress=False)
+    part = train(TrainConfig(**base, out=str(tmp_path / "parts"), stop_at=2), progress=False)
+    assert torch.load(part.parent / "state.pt", weights_only=True)["step"] == 2
+    parts = train(TrainConfig(**base, out=str(tmp_path / "parts")), progress=False)
+    lrs = [
+        [json.loads(line)["lr"] for line in (p.parent / "log.jsonl").read_text().splitlines()]
+        for p in (whole, parts)
+    ]
+    assert lrs[0] == lrs[1] and len(lrs[0]) == 4
+    a, b = (read_checkpoint(p, "generator")[0] for p in (whole, parts))
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match="stop_at"):
+        TrainConfig(**base, out="x", stop_at=0)
 
 
 def test_training_lowers_the_loss_on_a_fixed_scene(dataset, tmp_path):
@@ -382,3 +414,31 @@ def test_training_draws_a_size_per_step(dataset, tmp_path):
         train(TrainConfig(**base, out=str(tmp_path / "a"), steps=4, sizes="32,64"), progress=False)
     train(TrainConfig(**base, out=str(tmp_path / "b"), steps=2, sizes="32"), progress=False)
     assert (tmp_path / "b" / "checkpoint.safetensors").exists()
+
+
+def test_training_with_targets_at_twice_the_input_size(tmp_path):
+    """--sizes 32 --target-scale 2 on 64-px data: the generator runs at 32 px, its Gaussians
+    are scored on 64-px targets, validation does the same, and the weights say 32."""
+    from prosplat.checkpoints import read_checkpoint
+
+    root = tmp_path / "data64"
+    for k in range(2):
+        write_synthetic_scene(root / f"scene_{k}", size=64, n_views=5)
+    cfg = TrainConfig(
+        data=str(root),
+        val=str(root),
+        out=str(tmp_path / "run"),
+        targets=1,
+        inputs=2,
+        lpips_weight=0.0,
+        log_every=2,
+        val_every=2,
+        val_scenes=1,
+        steps=2,
+        sizes="32",
+        target_scale=2,
+    )
+    path = train(cfg, progress=False)
+    rec = json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[-1])
+    assert math.isfinite(rec["loss"]) and math.isfinite(rec["val_psnr"])
+    assert read_checkpoint(path, "generator")[1]["trained_size"] == "32"

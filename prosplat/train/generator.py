@@ -132,8 +132,11 @@ def train_sizes(text: str) -> tuple[int, ...]:
     return sizes
 
 
-def resize_batch(batch: dict[str, Tensor], size: int) -> dict[str, Tensor]:
-    """Downsample a square batch's images, depths and intrinsics to ``size`` px.
+def resize_batch(
+    batch: dict[str, Tensor], size: int, target_size: int | None = None
+) -> dict[str, Tensor]:
+    """Downsample a square batch's images, depths and intrinsics to ``size`` px: the inputs to
+    ``size``, the targets to ``target_size`` (default ``size``).
 
     Images: antialiased bilinear (what a lower-resolution camera integrates). Depths: the
     bilinear value at the new pixel centre where the 2x2 (or larger) footprint agrees within
@@ -144,31 +147,32 @@ def resize_batch(batch: dict[str, Tensor], size: int) -> dict[str, Tensor]:
     from prosplat.generator.cost_volume import scale_intrinsics
 
     h, w = batch["input_images"].shape[-2:]
-    if (h, w) == (size, size):
-        return batch
-    if size > min(h, w):
-        raise ValueError(f"cannot train at {size} px on {w}x{h} data: render larger scenes")
-    out = dict(batch)
-    for key in ("input_images", "target_images"):
-        x = batch[key]  # [B,M,3,H,W]
-        y = F.interpolate(
-            x.flatten(0, 1), size=(size, size), mode="bilinear", antialias=True, align_corners=False
+    sizes = {"input": size, "target": size if target_size is None else target_size}
+    if max(sizes.values()) > min(h, w):
+        raise ValueError(
+            f"cannot train at {max(sizes.values())} px on {w}x{h} data: render larger scenes"
         )
-        out[key] = y.clamp(0, 1).view(*x.shape[:2], 3, size, size)
-    for key in ("input_depths", "target_depths"):
-        if key not in batch:
+    out = dict(batch)
+    for group, s in sizes.items():
+        if (h, w) == (s, s):
             continue
-        d = batch[key].flatten(0, 1)[:, None]  # [BM,1,H,W]
-        k = h // size
+        x = batch[f"{group}_images"]  # [B,M,3,H,W]
+        y = F.interpolate(
+            x.flatten(0, 1), size=(s, s), mode="bilinear", antialias=True, align_corners=False
+        )
+        out[f"{group}_images"] = y.clamp(0, 1).view(*x.shape[:2], 3, s, s)
+        out[f"{group}_K"] = scale_intrinsics(batch[f"{group}_K"], s / w, s / h)
+        if f"{group}_depths" not in batch:
+            continue
+        d = batch[f"{group}_depths"].flatten(0, 1)[:, None]  # [BM,1,H,W]
+        k = h // s
         hi = F.max_pool2d(d, k)
         lo = -F.max_pool2d(-torch.where(d > 0, d, torch.full_like(d, float("inf"))), k)
-        mid = F.interpolate(d, size=(size, size), mode="bilinear", align_corners=False)
+        mid = F.interpolate(d, size=(s, s), mode="bilinear", align_corners=False)
         ok = (lo > 0) & torch.isfinite(lo) & (hi <= lo * 1.05)
-        out[key] = torch.where(ok, mid, torch.zeros_like(mid))[:, 0].view(
-            *batch[key].shape[:2], size, size
+        out[f"{group}_depths"] = torch.where(ok, mid, torch.zeros_like(mid))[:, 0].view(
+            *batch[f"{group}_depths"].shape[:2], s, s
         )
-    for key in ("input_K", "target_K"):
-        out[key] = scale_intrinsics(batch[key], size / w, size / h)
     return out
 
 
@@ -203,6 +207,9 @@ class TrainConfig:
     config: str = "tiny"  # generator preset: "tiny" | "base"
     val: str | None = None
     steps: int = 20_000
+    # stop (with a checkpoint) after this step, the schedule still following ``steps``: a long
+    # run taken in bounded parts, each part the same steps a single run would take
+    stop_at: int | None = None
     batch: int = 1  # scenes per step per process
     inputs: int | str | tuple[int, ...] = 2  # a count, or a set drawn from per step
     targets: int = 2
@@ -220,6 +227,10 @@ class TrainConfig:
     # image sizes drawn per step (e.g. "64,128"; empty = the data's size): one set of weights
     # for every size; data is downsampled, never upsampled
     sizes: str = ""
+    # targets at this multiple of the step's size (at most the data's): the pipeline runs the
+    # generator at its trained size and renders its Gaussians for cameras with more pixels,
+    # so Gaussians trained only at the input size leave pinholes there
+    target_scale: int = 1
     any_view: bool = False  # draw inputs/targets from all of a scene's views (SceneDataset)
     # at a size below the data's, this share of steps crops a window instead of downsampling
     crop_prob: float = 0.0
@@ -240,6 +251,15 @@ class TrainConfig:
     def __post_init__(self) -> None:
         input_counts(self.inputs)  # fail at construction, not at the first step
         train_sizes(self.sizes)
+        if self.stop_at is not None and self.stop_at < 1:
+            raise ValueError(f"stop_at must be >= 1, got {self.stop_at}")
+        if self.target_scale < 1:
+            raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
+
+    @property
+    def last_step(self) -> int:
+        """The step this invocation trains to: ``stop_at`` when set, else ``steps``."""
+        return self.steps if self.stop_at is None else min(self.stop_at, self.steps)
 
     @property
     def size_choices(self) -> tuple[int, ...]:
@@ -283,8 +303,8 @@ def render_loss(
     """
     from prosplat.metrics import ssim
 
-    targets = batch["target_images"]  # [B,M,3,H,W]
-    b_size, m, _, h, w = targets.shape
+    targets = batch["target_images"]  # [B,M,3,H,W] (inputs may be smaller: target_scale)
+    b_size, m = targets.shape[:2]
     bg = torch.zeros(3, device=targets.device)
     groups = [("target", 1.0)]
     if cfg.input_render_weight > 0:
@@ -295,6 +315,7 @@ def render_loss(
         gaussians = output.gaussians(b)
         for group, weight in groups:
             images, depths = batch[f"{group}_images"][b], batch.get(f"{group}_depths")
+            h, w = images.shape[-2:]
             cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
             for j, cam in enumerate(cams):
                 out = _render(gaussians, cam, bg)
@@ -378,6 +399,7 @@ def validate(model, cfg: TrainConfig, device: torch.device, ds=None) -> dict[str
         scores: dict[str, list[float]] = {"psnr": [], "ssim": [], "lpips": []}
         for i in range(min(cfg.val_scenes, len(ds))):
             item = _to({k: v[None] for k, v in ds[ItemKey(i, 0, n)].items()}, device)
+            item = _val_view(item, cfg)
             out = model(*_model_inputs(item))
             g = out.gaussians(0)
             h, w = item["target_images"].shape[-2:]
@@ -406,26 +428,43 @@ class _StepBatches:
         self.n_items, self.cfg, self.first, self.dist = n_items, cfg, first, dist
 
     def __len__(self) -> int:
-        return max(0, self.cfg.steps - self.first)
+        return max(0, self.cfg.last_step - self.first)
 
     def __iter__(self) -> Iterator[list]:
         from prosplat.data.dataset import ItemKey
 
         cfg, d = self.cfg, self.dist
-        for step in range(self.first, cfg.steps):
+        for step in range(self.first, cfg.last_step):
             epoch, idx = step_indices(self.n_items, cfg.batch, cfg.seed, step, d.rank, d.world_size)
             n = draw_count(cfg.view_counts, cfg.seed, step)
             yield [ItemKey(i, epoch, n) for i in idx]
 
 
 def _step_view(batch: dict[str, Tensor], cfg: TrainConfig, step: int) -> dict[str, Tensor]:
-    """This step's image size, and a crop or a downsample to reach it (seeded by the step)."""
+    """This step's image size, and a crop or a downsample to reach it (seeded by the step).
+
+    A crop takes the targets' window (``target_scale`` x the size, at most the data's); the
+    inputs are then downsampled to the size."""
     size = draw_count(cfg.size_choices, cfg.seed + 7919, step)
     h, w = batch["input_images"].shape[-2:]
+    big = min(size * cfg.target_scale, h, w)
     rng = random.Random(f"prosplat-crop/{cfg.seed}/{step}")
     if size < min(h, w) and rng.random() < cfg.crop_prob:
-        return crop_batch(batch, size, rng.randint(0, h - size), rng.randint(0, w - size))
-    return resize_batch(batch, size)
+        batch = crop_batch(batch, big, rng.randint(0, h - big), rng.randint(0, w - big))
+    return resize_batch(batch, size, big)
+
+
+def _val_view(item: dict[str, Tensor], cfg: TrainConfig) -> dict[str, Tensor]:
+    """A validation item as the pipeline sees it: the inputs at the largest training size
+    (the size the weights run at), the targets ``target_scale`` x that (at most the data's).
+    Without ``sizes``, the data's own size."""
+    if not cfg.size_choices:
+        return item
+    size = max(cfg.size_choices)
+    h, w = item["input_images"].shape[-2:]
+    if size > min(h, w):
+        return item
+    return resize_batch(item, size, min(size * cfg.target_scale, h, w))
 
 
 def _weights_metadata(pipe, trained_size: int | None = None) -> dict[str, str]:
@@ -542,7 +581,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     loader = DataLoader(ds, batch_sampler=_StepBatches(len(ds), cfg, step, dist))
     log = open(log_path, "a") if dist.is_main else None
     bar = tqdm(
-        total=cfg.steps,
+        total=cfg.last_step,
         initial=step,
         desc="train generator",
         disable=not progress or not dist.is_main,
@@ -586,7 +625,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                         rec.update(validate(model, cfg, device, val_ds))
                     log.write(json.dumps(rec) + "\n")
                     log.flush()
-            if dist.is_main and (step % cfg.save_every == 0 or step == cfg.steps):
+            if dist.is_main and (step % cfg.save_every == 0 or step == cfg.last_step):
                 if heads:
                     _save_heads(model, opt, step, out, cfg.init)
                 else:
