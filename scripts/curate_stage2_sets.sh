@@ -10,6 +10,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
+# two curations at once, one thread each: with torch's default threads each, a third process on
+# this 2-core machine made them 5-10x slower
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 DIR=${1:-runs/s2v3}
 mkdir -p "$DIR"
 curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS

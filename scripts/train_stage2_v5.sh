@@ -1,19 +1,36 @@
 #!/usr/bin/env bash
 # Stage 2 v5 on the CPU: the shipped v4 fine-tuned on what generator v2 renders (DESIGN.md:
-# stage-2 weights follow the generator that made their training renders). The same curated
-# sets as v4's (scripts/curate_stage2_sets.sh: raw and 300-step refined renders at 64 and
-# 128 px, the generator at 64 px) made with generator v2 into runs/s2v5/sets, and v4's recipe
+# stage-2 weights follow the generator that made their training renders), with v4's recipe
 # (replicate padding, alpha input, 48-px crops, flips, LPIPS weight 0.1) at a lower rate.
 # Fine-tuned from v4, not from v1: v4 stamps no blobs of its own, v1's descendants did.
-# Resumable like every run here: finished sets are kept, and re-running continues the run.
+# Data: generator v2's raw renders at 64 and 128 px (the generator at 64 px, as the pipeline
+# runs it), made here into runs/s2v5/sets, and the two refined sets v4 trained on (runs/s2v3,
+# scripts/curate_stage2_sets.sh): refinement fits the Gaussians to the inputs, so the refined
+# renders depend little on the generator, and re-curating them costs ~30 min of CPU.
+# One thread per process: two curations with torch's default threads each on 2 cores ran
+# 5-10x slower. Resumable: finished sets are kept, and re-running continues the run.
 #   scripts/train_stage2_v5.sh [STEPS]   (default 3000; GEN= the generator, default the shipped
-#   one; INIT= the starting stage 2, default runs/s2v4/scratch8000.safetensors = v4)
+#   v2; INIT= the starting stage 2, default runs/s2v4/scratch8000.safetensors = v4; OLD= the
+#   refined sets' folder, default runs/s2v3)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+GEN=${GEN:-prosplat/weights/generator_tiny.safetensors}
 SETS=runs/s2v5/sets
-GEN=${GEN:-prosplat/weights/generator_tiny.safetensors} scripts/curate_stage2_sets.sh $SETS
-$P train improve --data $SETS/raw64.safetensors,$SETS/ref64.safetensors,$SETS/raw128.safetensors,$SETS/ref128.safetensors \
+OLD=${OLD:-runs/s2v3}
+mkdir -p $SETS
+# without v4's refined sets, make them (with GEN, ~30 min)
+[ -f $OLD/ref64.safetensors ] && [ -f $OLD/ref128.safetensors ] || GEN="$GEN" scripts/curate_stage2_sets.sh "$OLD"
+curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
+  [ -f "$SETS/$1.safetensors" ] || $P train curate --data $2 --out "$SETS/$1.safetensors" \
+    --views $3 --size $4 --generator-size 64 --refine-steps $5 --generator "$GEN"
+}
+curate raw64 data/train128 2,3,4,6 64 0 &
+curate val_ref128 data/val128 4 128 300
+curate raw128 data/train128 2,4 128 0
+wait
+$P train improve --data $SETS/raw64.safetensors,$OLD/ref64.safetensors,$SETS/raw128.safetensors,$OLD/ref128.safetensors \
   --val $SETS/val_ref128.safetensors --out runs/s2v5/run --init "${INIT:-runs/s2v4/scratch8000.safetensors}" \
   --padding replicate --alpha --crop 48 --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 100 \
   --lpips-weight 0.1 --val-every 500 --save-every 100 --log-every 50
