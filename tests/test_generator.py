@@ -184,7 +184,7 @@ def plane_features(cam: Camera, z0: float, channels: int = 16) -> torch.Tensor:
 def test_fine_matching_adds_a_half_resolution_volume_that_gets_gradients():
     """fine_matching_channels > 0: the 1/2-resolution cost volume is built from its own
     features and feeds the depth head; every new parameter learns, and the default (0) keeps
-    the v1 parameter layout (the shipped v1 weights load strictly)."""
+    the v1 parameter layout (the shipped weights, v1's network, load strictly)."""
     torch.manual_seed(2)
     cfg = GeneratorConfig(**{**SMALL.to_dict(), "fine_matching_channels": 4})
     model = Generator(cfg).train()

@@ -9,9 +9,10 @@ the U-Net's 16-px cell (:func:`~prosplat.improve.pattern.lattice_score`, any pha
 
 The test can fail: v1 (shipped until v4) scores 58 / 4.3 / 1.8 on it (pattern / lattice 8 /
 lattice 16) for its centred row of green-and-yellow blobs, and v3 (fine-tuned from v1,
-never shipped) 4.0 / 7.8 / 1.8 for its grid of blobs; v4 scores 2.4 / 1.03 / 1.13. What the
-test cannot see: blobs whose place follows the content (v4 still paints some on the demo
-scene's washed-out renders; BENCHMARKS "Stage 2 v4").
+never shipped) 4.0 / 7.8 / 1.8 for its grid of blobs; v4 scores 2.4 / 1.03 / 1.13 and v5
+(shipped) 2.68 / 1.22 / 1.43. What the test cannot see: blobs whose place follows the content
+(v4 and v5 still paint some on the demo scene's washed-out renders; BENCHMARKS "Stage 2 v4",
+"Generator v2 on the CPU").
 """
 
 from __future__ import annotations
