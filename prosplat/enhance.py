@@ -7,8 +7,9 @@ bottom (edge replicate) and the result cropped back. Padding there leaves pixel 
 and so the fundamental matrix, unchanged.
 
 Any camera size: a view larger than the model's ``working_size`` (the largest view it runs on
-directly: 128 for the shipped v5, the largest size it was trained at) is enhanced at that size, and only the change, ``enhanced -
-raw`` at the working size, is upsampled and added to the full-resolution render. The render
+directly: 128 for the shipped v5, the largest size it was trained at) is enhanced at that
+size, and only the change, ``enhanced - raw`` at the working size, is upsampled and added to
+the full-resolution render. The render
 keeps its own detail, the model sees textures near the scale it learned, memory stays bounded
 by the working size whatever the camera (a 4K frame costs what a working-size one does), and
 there are no tile seams.
