@@ -10,13 +10,15 @@
 # One thread per process: two curations with torch's default threads each on 2 cores ran
 # 5-10x slower. Resumable: finished sets are kept, and re-running continues the run.
 #   scripts/train_stage2_v5.sh [STEPS]   (default 3000; GEN= the generator, default the shipped
-#   v2; INIT= the starting stage 2, default runs/s2v4/scratch8000.safetensors = v4; OLD= the
-#   refined sets' folder, default runs/s2v3)
+#   v2; INIT= the starting stage 2, default v4 taken from git history into runs/s2v4/v4.safetensors;
+#   OLD= the refined sets' folder, default runs/s2v3)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 GEN=${GEN:-prosplat/weights/generator_tiny.safetensors}
+INIT=${INIT:-runs/s2v4/v4.safetensors}
+[ -f "$INIT" ] || { mkdir -p "$(dirname "$INIT")"; git show 1f6739a:prosplat/weights/improve_tiny.safetensors > "$INIT"; }
 SETS=runs/s2v5/sets
 OLD=${OLD:-runs/s2v3}
 mkdir -p $SETS
@@ -31,6 +33,6 @@ curate val_ref128 data/val128 4 128 300
 curate raw128 data/train128 2,4 128 0
 wait
 $P train improve --data $SETS/raw64.safetensors,$OLD/ref64.safetensors,$SETS/raw128.safetensors,$OLD/ref128.safetensors \
-  --val $SETS/val_ref128.safetensors --out runs/s2v5/run --init "${INIT:-runs/s2v4/scratch8000.safetensors}" \
+  --val $SETS/val_ref128.safetensors --out runs/s2v5/run --init "$INIT" \
   --padding replicate --alpha --crop 48 --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 100 \
   --lpips-weight 0.1 --val-every 500 --save-every 100 --log-every 50
