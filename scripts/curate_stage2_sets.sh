@@ -6,7 +6,8 @@
 #   val_ref128 (4 inputs) and val_raw64 (2/4) from data/val128.
 # Finished sets are kept, so re-running only makes what is missing (~25 min on 2 cores from
 # nothing, two curations at a time).
-#   scripts/curate_stage2_sets.sh [DIR]   (default runs/s2v3; GEN= another generator checkpoint)
+#   scripts/curate_stage2_sets.sh [DIR [NAME...]]   (default runs/s2v3 and all six sets; NAMEs
+#   pick some of them, e.g. raw64 raw128; GEN= another generator checkpoint)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -14,8 +15,10 @@ P=${PROSPLAT:-.venv/bin/prosplat}
 # this 2-core machine made them 5-10x slower
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 DIR=${1:-runs/s2v3}
+WANT=" ${*:2} "
 mkdir -p "$DIR"
 curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
+  [ "$WANT" = "  " ] || [[ "$WANT" == *" $1 "* ]] || return 0
   [ -f "$DIR/$1.safetensors" ] || $P train curate --data $2 --out "$DIR/$1.safetensors" \
     --views $3 --size $4 --generator-size 64 --refine-steps $5 ${GEN:+--generator "$GEN"}
 }

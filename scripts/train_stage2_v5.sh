@@ -7,31 +7,22 @@
 # runs it), made here into runs/s2v5/sets, and the two refined sets v4 trained on (runs/s2v3,
 # scripts/curate_stage2_sets.sh): refinement fits the Gaussians to the inputs, so the refined
 # renders depend little on the generator, and re-curating them costs ~30 min of CPU.
-# One thread per process: two curations with torch's default threads each on 2 cores ran
-# 5-10x slower. Resumable: finished sets are kept, and re-running continues the run.
+# Resumable: finished sets are kept, and re-running continues the run.
 #   scripts/train_stage2_v5.sh [STEPS]   (default 3000; GEN= the generator, default the shipped
 #   v2; INIT= the starting stage 2, default v4 taken from git history into runs/s2v4/v4.safetensors;
 #   OLD= the refined sets' folder, default runs/s2v3)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
-export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 GEN=${GEN:-prosplat/weights/generator_tiny.safetensors}
 INIT=${INIT:-runs/s2v4/v4.safetensors}
 [ -f "$INIT" ] || { mkdir -p "$(dirname "$INIT")"; git show 1f6739a:prosplat/weights/improve_tiny.safetensors > "$INIT"; }
 SETS=runs/s2v5/sets
 OLD=${OLD:-runs/s2v3}
 mkdir -p $SETS
-# without v4's refined sets, make them (with GEN, ~30 min)
-[ -f $OLD/ref64.safetensors ] && [ -f $OLD/ref128.safetensors ] || GEN="$GEN" scripts/curate_stage2_sets.sh "$OLD"
-curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
-  [ -f "$SETS/$1.safetensors" ] || $P train curate --data $2 --out "$SETS/$1.safetensors" \
-    --views $3 --size $4 --generator-size 64 --refine-steps $5 --generator "$GEN"
-}
-curate raw64 data/train128 2,3,4,6 64 0 &
-curate val_ref128 data/val128 4 128 300
-curate raw128 data/train128 2,4 128 0
-wait
+# without v4's refined sets, make them (with GEN, ~30 min); GEN's raw sets and validation set
+GEN="$GEN" scripts/curate_stage2_sets.sh "$OLD" ref64 ref128
+GEN="$GEN" scripts/curate_stage2_sets.sh $SETS raw64 raw128 val_ref128
 $P train improve --data $SETS/raw64.safetensors,$OLD/ref64.safetensors,$SETS/raw128.safetensors,$OLD/ref128.safetensors \
   --val $SETS/val_ref128.safetensors --out runs/s2v5/run --init "$INIT" \
   --padding replicate --alpha --crop 48 --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 100 \
