@@ -524,6 +524,15 @@ def build_parser() -> argparse.ArgumentParser:
         "weights') fine-tunes only its Gaussian regressor and head, the rest frozen, and writes "
         "OUT/<name>-prosplat-ft.pth for --generator / from_pretrained(generator=)",
     )
+    tg.add_argument(
+        "--grow-fine-matching",
+        type=int,
+        default=defaults.grow_fine_matching,
+        metavar="CH",
+        help="with --init prosplat weights: add a 1/2-resolution cost volume with CH feature "
+        "channels (sharper matching peaks at wide baselines), entering through zero weights "
+        "so training starts from the init's exact outputs (default 0: off)",
+    )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)
     from prosplat.cli_improve import add_eval_parser, add_train_parsers

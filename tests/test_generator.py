@@ -202,6 +202,43 @@ def test_fine_matching_adds_a_half_resolution_volume_that_gets_gradients():
         GeneratorConfig(fine_matching_channels=-1)
 
 
+def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
+    """Growing weights by a fine cost volume gives the same Gaussians as the original network
+    (the new inputs enter through zero weights), and a gradient step opens the new paths."""
+    from prosplat.generator.grow import grow_fine_matching
+
+    torch.manual_seed(3)
+    old = Generator(SMALL).eval()
+    with torch.no_grad():  # trained weights are not at their init: perturb every tensor
+        for p in old.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    cfg, state = grow_fine_matching(SMALL, old.state_dict(), 4)
+    assert (
+        cfg.fine_matching_channels == 4 and cfg.num_depth_candidates == SMALL.num_depth_candidates
+    )
+    new = Generator(cfg).eval()
+    new.load_state_dict(state)
+    cams = rig(3, 32, 32)
+    images, K, w2c = batch(cams)
+    near, far = torch.tensor([NEAR]), torch.tensor([FAR])
+    with torch.no_grad():
+        a, b = old(images, K, w2c, near, far), new(images, K, w2c, near, far)
+    torch.testing.assert_close(b.depths, a.depths, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(b.means, a.means, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(b.sh, a.sh, atol=1e-5, rtol=1e-5)
+    new.train()
+    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
+    render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
+    grads = {n: p.grad for n, p in new.named_parameters()}
+    assert grads["depth_head.fine_gain"].abs() > 0
+    fine_slot = grads["depth_head.unet.inc.0.0.weight"][:, 8:16]  # the fine volume's channels
+    assert fine_slot.abs().max() > 0
+    with pytest.raises(ValueError, match="already"):
+        grow_fine_matching(cfg, state, 4)
+    with pytest.raises(ValueError, match="channels"):
+        grow_fine_matching(SMALL, old.state_dict(), 0)
+
+
 def test_warp_grid_matches_camera_projection():
     """The grid for a candidate depth samples the neighbour exactly where Camera.project puts
     the reference pixel centre lifted to that depth (pixel centres at +0.5, align_corners=False)."""

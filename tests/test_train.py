@@ -15,6 +15,7 @@ import torch
 from synthetic_scenes import write_synthetic_scene
 
 from prosplat import ProSplat, cli
+from prosplat.data import SceneDataset
 from prosplat.train.common import (
     WEIGHTS_NAME,
     CheckpointError,
@@ -378,6 +379,32 @@ def test_init_starts_from_given_weights_and_input_depth_is_supervised(dataset, t
     first = sum(r["input_depth"] for r in log[:5]) / 5
     last = sum(r["input_depth"] for r in log[-5:]) / 5
     assert last < 0.8 * first
+
+
+def test_grow_fine_matching_starts_from_the_init_and_resumes(dataset, tmp_path):
+    """--grow-fine-matching: at a learning rate of ~0 the saved network is the init's with a
+    fine cost volume added, predicting the same depth; a resume rebuilds the grown network;
+    without prosplat --init weights it is refused."""
+    torch.manual_seed(0)
+    start = ProSplat().save(tmp_path / "start.safetensors")
+    base = dict(data=str(dataset.parent / "fixed"), targets=1, inputs=2, lpips_weight=0.0, warmup=1)
+    grow = dict(**base, init=str(start), grow_fine_matching=4, lr=1e-12, save_every=1, log_every=1)
+    train(TrainConfig(**grow, out=str(tmp_path / "g"), steps=1), progress=False)
+    grown = ProSplat.from_pretrained(tmp_path / "g" / WEIGHTS_NAME)
+    assert grown.generator.config.fine_matching_channels == 4
+    plain = ProSplat.from_pretrained(start)
+    scene = SceneDataset(str(dataset.parent / "fixed"), n_inputs=2)[0]
+    images, K, w2c = scene["input_images"][None], scene["input_K"][None], scene["input_w2c"][None]
+    near, far = scene["near"][None], scene["far"][None]
+    with torch.no_grad():
+        a = plain.generator.eval()(images, K, w2c, near, far).depths
+        b = grown.generator.eval()(images, K, w2c, near, far).depths
+    torch.testing.assert_close(b, a, atol=1e-4, rtol=1e-4)
+    train(TrainConfig(**grow, out=str(tmp_path / "g"), steps=2), progress=False)  # resume
+    log = (tmp_path / "g" / "log.jsonl").read_text().splitlines()
+    assert [json.loads(line)["step"] for line in log] == [1, 2]
+    with pytest.raises(ValueError, match="grow_fine_matching"):
+        TrainConfig(**base, out="x", grow_fine_matching=4)
 
 
 def test_input_render_weight_scores_the_input_cameras_from_all_views(dataset, tmp_path):

@@ -239,6 +239,10 @@ class TrainConfig:
     # the whole generator; a DepthSplat .pth fine-tunes its Gaussian heads only, the rest
     # frozen (prosplat.train.depthsplat_heads; ``config`` is then unused)
     init: str | None = None
+    # with a prosplat ``init`` without fine matching: add a 1/2-resolution cost volume of this
+    # many channels, entering through zero weights so step 0 is the init's generator
+    # (prosplat.generator.grow); 0 = the network of ``config``
+    grow_fine_matching: int = 0
     grad_clip: float = 0.5
     warmup: int = 500
     log_every: int = 10
@@ -255,6 +259,10 @@ class TrainConfig:
             raise ValueError(f"stop_at must be >= 1, got {self.stop_at}")
         if self.target_scale < 1:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
+        if self.grow_fine_matching < 0:
+            raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
+        if self.grow_fine_matching and not (self.init or "").endswith(".safetensors"):
+            raise ValueError("grow_fine_matching needs --init with prosplat generator weights")
 
     @property
     def last_step(self) -> int:
@@ -523,6 +531,9 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         params = model.trainable_parameters()
         pipe = None
     else:
+        init_state = None
+        if cfg.grow_fine_matching:
+            model_config, init_state = _grown_init(cfg)
         pipe = ProSplat(model_config or preset(cfg.config))
         model = pipe.generator.to(device).train()
         params = list(model.parameters())
@@ -536,7 +547,9 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     if ckpt is None and cfg.init and not heads:
         from prosplat.checkpoints import read_checkpoint
 
-        model.load_state_dict(read_checkpoint(Path(cfg.init), "generator")[0])
+        if init_state is None:
+            init_state = read_checkpoint(Path(cfg.init), "generator")[0]
+        model.load_state_dict(init_state)
     if ckpt is not None:
         if heads:
             model.load_trainable(ckpt.weights, str(ckpt.weights_path))
@@ -651,6 +664,21 @@ def _save(pipe, opt, step: int, out: Path) -> None:
         pipe.generator.state_dict(),
         {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()},
         metadata=_weights_metadata(pipe, pipe.trained_size),
+    )
+
+
+def _grown_init(cfg: TrainConfig):
+    """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
+    channels; on a resume only the config is used (the checkpoint holds the weights)."""
+    from prosplat.checkpoints import read_checkpoint
+    from prosplat.generator.config import GeneratorConfig
+    from prosplat.generator.grow import grow_fine_matching
+
+    state, meta = read_checkpoint(Path(cfg.init), "generator")
+    if "config" not in meta:
+        raise ValueError(f"{cfg.init} has no generator config in its metadata to grow")
+    return grow_fine_matching(
+        GeneratorConfig.from_json(meta["config"]), state, cfg.grow_fine_matching
     )
 
 

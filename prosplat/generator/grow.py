@@ -1,0 +1,67 @@
+"""Grow trained generator weights into a larger network that computes the same function.
+
+Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
+does not. When a change adds a module (here: the 1/2-resolution cost volume of
+``fine_matching_channels``), the trained weights are copied into the larger network and the
+new module enters through weights that start at zero, so step 0 of the fine-tune reproduces
+the old generator exactly and training only has to learn what the new input adds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+from torch import Tensor
+
+from prosplat.generator.config import GeneratorConfig
+from prosplat.generator.model import Generator
+
+#: The first conv of the depth head's U-Net: its input is concat(cost, [fine cost], mono, feats).
+_UNET_IN = "depth_head.unet.inc.0.0.weight"
+
+
+def grow_fine_matching(
+    config: GeneratorConfig, state: dict[str, Tensor], channels: int
+) -> tuple[GeneratorConfig, dict[str, Tensor]]:
+    """Weights of ``config`` (without fine matching) -> the same network with a
+    ``channels``-wide 1/2-resolution cost volume, and a state dict that gives identical outputs.
+
+    The fine cost volume reaches the depth through two paths, both closed at the start: the
+    U-Net input channels it occupies get zero weights, and its gain on the logit prior is 0.
+    The fine features' projection and pooling keep a fresh random init (seeded by the caller)
+    so that gradients flow into them once the closed paths open.
+    """
+    if channels < 1:
+        raise ValueError(f"grow_fine_matching: channels must be >= 1, got {channels}")
+    if config.fine_matching_channels:
+        raise ValueError(
+            "grow_fine_matching: the weights already have a fine cost volume "
+            f"(fine_matching_channels={config.fine_matching_channels})"
+        )
+    grown_config = replace(config, fine_matching_channels=channels)
+    grown = Generator(grown_config).state_dict()
+    missing = set(state) - set(grown)
+    if missing:
+        raise ValueError(f"grow_fine_matching: unexpected weights {sorted(missing)[:3]}")
+    d = config.num_depth_candidates
+    out: dict[str, Tensor] = {}
+    for key, fresh in grown.items():
+        old = state.get(key)
+        if key == _UNET_IN:
+            w = torch.zeros_like(fresh)  # [U0, 2D+Cm+C, 3, 3]
+            w[:, :d] = old[:, :d]  # coarse cost
+            w[:, 2 * d :] = old[:, d:]  # mono + matching features; [d:2d] (fine) stays 0
+            out[key] = w
+        elif key == "depth_head.fine_gain":
+            out[key] = torch.zeros_like(fresh)
+        elif old is None:
+            out[key] = fresh  # the new module's own init
+        elif old.shape != fresh.shape:
+            raise ValueError(
+                f"grow_fine_matching: {key} is {list(old.shape)} in the weights but "
+                f"{list(fresh.shape)} in the grown network"
+            )
+        else:
+            out[key] = old.clone()
+    return grown_config, out
