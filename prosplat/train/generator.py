@@ -285,21 +285,28 @@ def batch_cameras(K: Tensor, w2c: Tensor, width: int, height: int) -> list[Camer
     return [Camera(K[v].double(), w2c[v].double(), width, height) for v in range(K.shape[0])]
 
 
-def _render(gaussians, cam: Camera, bg: Tensor):
+def _render(gaussians, cam: Camera, bg: Tensor, cpu_backend: str = "cpu-fused"):
     """Render for the loss. On CUDA without gsplat the Gaussians go to the CPU rasterizer and
-    the outputs come back (autograd follows both copies), so a GPU still trains the network."""
+    the outputs come back (autograd follows both copies), so a GPU still trains the network.
+
+    On the CPU the projection is the fused C++ kernel (``cpu_backend``): the torch projection
+    computes the same float64 numbers (the render tests hold them together) through ~100 ops
+    whose autograd cost ~20 % of a training step (``benchmarks/generator_step.py``).
+    """
     from prosplat.render import _gsplat_available
 
     device = gaussians.device
     if device.type == "cuda" and not _gsplat_available(device):
-        out = render(gaussians.to("cpu"), cam, background=bg.cpu())
+        out = render(gaussians.to("cpu"), cam, background=bg.cpu(), backend=cpu_backend)
         out.rgb, out.alpha, out.depth = (t.to(device) for t in (out.rgb, out.alpha, out.depth))
         return out
+    if device.type == "cpu":
+        return render(gaussians, cam, background=bg, backend=cpu_backend)
     return render(gaussians, cam, background=bg)
 
 
 def render_loss(
-    output, batch: dict[str, Tensor], cfg: TrainConfig, lpips_fn=None
+    output, batch: dict[str, Tensor], cfg: TrainConfig, lpips_fn=None, cpu_backend="cpu-fused"
 ) -> tuple[Tensor, dict[str, float]]:
     """Render every target view of every scene in the batch and compare with ground truth.
 
@@ -326,7 +333,7 @@ def render_loss(
             h, w = images.shape[-2:]
             cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
             for j, cam in enumerate(cams):
-                out = _render(gaussians, cam, bg)
+                out = _render(gaussians, cam, bg, cpu_backend)
                 gt = images[j]
                 mse = torch.mean((out.rgb - gt) ** 2)
                 if group == "input":
