@@ -17,7 +17,8 @@ from pathlib import Path
 
 #: the rows run by default (per-scene optimisation joins when --opt-steps is given)
 DEFAULT_ROWS = (
-    "flat", "paste", "optimize", "generator", "enhanced", "refine", "true-depth", "depthsplat",
+    "flat", "paste", "optimize", "generator", "enhanced", "warp", "refine", "true-depth",
+    "depthsplat",
 )  # fmt: skip
 
 

@@ -1,7 +1,8 @@
 """The rungs of the evaluation ladder: every way of producing a target view that we compare.
 
 From the bottom: a flat image of the inputs' mean colour; the input MORI picks, pasted; the
-per-scene optimisation baseline; the generator's raw render; the enhanced view; and the
+per-scene optimisation baseline; the generator's raw render; the enhanced view; the MORI pick
+warped through the generator's depth; refinement; and the
 upper bound, Gaussians at Blender's true input depth, raw and enhanced. A number means
 something only between these.
 
@@ -282,6 +283,32 @@ def enhanced_rungs(ctx: LadderContext) -> list[Rung]:
         Rung(f"enhanced{suffix}", recon, _enhanced_view(imp, dtype), "generator", depth=True)
         for suffix, imp in improvers.items()
     ]
+
+
+def warp_paste_view(g, cam: Camera, inp: SceneInputs) -> View:
+    """The MORI reference warped into the target through the Gaussians' rendered depth
+    (:func:`prosplat.improve.warp.warp_reference`, occlusion tested against their depth at
+    the reference camera), the raw render where the warp is invalid: what a full-resolution
+    reference injection could hand stage 2, with no learning."""
+    from prosplat.improve.warp import warp_reference
+    from prosplat.render import render
+
+    with torch.no_grad():
+        out = render(g, cam)
+        j = select_reference(cam, inp.cameras, method="paper")
+        ref_depth = render(g, inp.cameras[j]).depth
+        warped, valid = warp_reference(
+            inp.images[j], inp.cameras[j], cam, out.depth, out.alpha, ref_depth
+        )
+    image = torch.where(valid[None], warped, out.rgb)
+    info = {"reference": j, "warp_valid": float(valid.float().mean())}
+    return View(image, out.depth, out.alpha, info=info)
+
+
+@register("warp")
+def warp_rungs(ctx: LadderContext) -> list[Rung]:
+    """The reference warped through the generator's depth (see :func:`warp_paste_view`)."""
+    return [Rung("warp paste", _generator_gaussians(ctx), warp_paste_view, "generator", depth=True)]
 
 
 @register("refine")
