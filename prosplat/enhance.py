@@ -137,12 +137,15 @@ def enhance(
     dtype: torch.dtype = torch.float32,
     working_size: int | None = None,
     alpha: Tensor | None = None,
+    warp: Tensor | None = None,
 ) -> Tensor:
     """Run ``improver`` on one render ``raw [3,H,W]`` with its reference; returns [3,H,W].
 
     Views larger than ``working_size`` (None: the model's ``config.working_size``; 0: no
     limit) are enhanced at that size and the change is carried up (module docstring).
-    ``alpha [H,W]`` is the render's coverage, for models with ``config.alpha_input``.
+    ``alpha [H,W]`` is the render's coverage, for models with ``config.alpha_input``;
+    ``warp [4,H,W]`` the reference warped into the view and its validity
+    (:func:`prosplat.improve.warp.reference_warp`), for models with ``config.warp_input``.
     ``dtype=torch.bfloat16`` runs under CPU/GPU autocast (the output is float32 again).
     """
     h, w = raw.shape[-2:]
@@ -150,11 +153,17 @@ def enhance(
     if size and max(h, w) > size:
         s = size / max(h, w)
         hs, ws = max(1, round(h * s)), max(1, round(w * s))
-        stack = raw[None] if alpha is None else torch.cat([raw, alpha[None].to(raw)])[None]
+        parts = [raw] + [x.reshape(-1, h, w).to(raw) for x in (alpha, warp) if x is not None]
         stack = F.interpolate(
-            stack, size=(hs, ws), mode="bilinear", align_corners=False, antialias=True
-        )[0]  # [3 or 4,hs,ws]
-        small, small_alpha = stack[:3], (stack[3] if alpha is not None else None)
+            torch.cat(parts)[None],
+            size=(hs, ws),
+            mode="bilinear",
+            align_corners=False,
+            antialias=True,
+        )[0]  # [3 (+1 alpha) (+4 warp),hs,ws]
+        small = stack[:3]
+        small_alpha = stack[3] if alpha is not None else None
+        small_warp = stack[-4:] if warp is not None else None
         change = _enhance_native(
             improver,
             small,
@@ -163,10 +172,13 @@ def enhance(
             reference_camera,
             dtype,
             small_alpha,
+            small_warp,
         ) - small.to(dtype=torch.float32)  # [3,hs,ws] on the model's device
         up = F.interpolate(change[None], size=(h, w), mode="bilinear", align_corners=False)[0]
         return (raw.to(up.device, torch.float32) + up).clamp(0.0, 1.0)
-    return _enhance_native(improver, raw, camera, reference_image, reference_camera, dtype, alpha)
+    return _enhance_native(
+        improver, raw, camera, reference_image, reference_camera, dtype, alpha, warp
+    )
 
 
 def _enhance_native(
@@ -177,6 +189,7 @@ def _enhance_native(
     reference_camera: Camera | None,
     dtype: torch.dtype,
     alpha: Tensor | None = None,
+    warp: Tensor | None = None,
 ) -> Tensor:
     """The model on ``raw [3,H,W]`` at its own size (padded to the model's multiple)."""
     h, w = raw.shape[-2:]
@@ -191,8 +204,9 @@ def _enhance_native(
         ref = pad_to_multiple(ref_img[None], m)
         fund = fundamental_matrix(camera, ref_cam)[None].to(device)  # float64: DWEA's precision
     a = None if alpha is None else pad_to_multiple(alpha[None, None].to(device, x.dtype), m)
+    wp = None if warp is None else pad_to_multiple(warp[None].to(device, x.dtype), m)
     with torch.autocast(device.type, dtype=dtype, enabled=dtype != torch.float32):
-        out = improver(x, ref, fund, a)
+        out = improver(x, ref, fund, a, wp)
     return out.float()[0, :, :h, :w]
 
 
@@ -231,6 +245,13 @@ def render_view(
         )
     depth = out.depth if reference_method == "overlap" else None
     ref = select_reference(camera, cameras, method=reference_method, target_depth=depth)
+    warp = None
+    if getattr(improver.config, "warp_input", False):
+        from prosplat.improve.warp import reference_warp
+
+        warp = reference_warp(
+            gaussians, camera, out.depth, out.alpha, images[ref], cameras[ref]
+        )  # [4,H,W]
     t2 = time.perf_counter()
     with torch.no_grad():
         image = enhance(
@@ -242,6 +263,7 @@ def render_view(
             dtype,
             options.working_size,
             out.alpha,
+            warp,
         ).to(out.rgb.device)
     t3 = time.perf_counter()
     timings.update(mori_ms=1e3 * (t2 - t1), enhance_ms=1e3 * (t3 - t2))

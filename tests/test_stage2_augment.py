@@ -83,6 +83,32 @@ def test_alpha_input_starts_as_identity_and_then_matters():
         assert not torch.allclose(model(x, ref, F, holes), model(x, ref, F))
 
 
+def test_warp_input_starts_as_identity_loads_old_weights_and_then_matters(tmp_path):
+    """A warp-input model is the same function as its weights without it (zero start, so
+    load_improver(warp_input=True) upgrades a shipped model exactly), until warp_in learns."""
+    from prosplat.improve.io import load_improver, save_improver
+
+    torch.manual_seed(0)
+    old = ImproveModel(ImproveConfig(alpha_input=True)).eval()
+    with torch.no_grad():
+        torch.nn.init.normal_(old.vae.decoder.conv_out.weight, std=0.1)  # a trained-like model
+    path = save_improver(old, tmp_path / "old.safetensors")
+    model = load_improver(path, warp_input=True)
+    assert model.config.warp_input and model.config.alpha_input
+    x, ref = torch.rand(1, 3, 32, 32), torch.rand(1, 3, 32, 32)
+    F = torch.zeros(1, 3, 3, dtype=torch.float64)
+    warp = torch.cat([torch.rand(1, 3, 32, 32), torch.ones(1, 1, 32, 32)], 1)
+    with torch.no_grad():
+        assert torch.equal(model(x, ref, F, None, warp), old(x, ref, F))
+        assert torch.equal(model(x, ref, F), old(x, ref, F))  # no warp given = no warp
+        torch.nn.init.normal_(model.warp_in.weight)
+        assert not torch.allclose(model(x, ref, F, None, warp), model(x, ref, F))
+    assert (
+        model.num_parameters()["warp_in"]
+        == 4 * 9 * model.vae.config.block_out_channels[0] + (model.vae.config.block_out_channels[0])
+    )
+
+
 def test_replicate_padding_cannot_stamp_a_pattern_on_a_flat_view():
     """With zero padding the network knows where it is in the image, so a flat grey render
     comes back with structure (v1's fixed pattern); with replicate padding (every padded

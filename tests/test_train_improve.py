@@ -58,6 +58,15 @@ def test_curation_stores_render_reference_and_truth(setup) -> None:
     assert data["F_paper"].shape == (12, 3, 3) and torch.isfinite(data["F_paper"]).all()
     # the stored render is what the generator renders (float16 rounding aside)
     assert 0 <= float(data["render"].float().min()) and float(data["render"].float().max()) <= 1
+    # the warped reference: RGB from the reference where valid, validity 0/1, never outside
+    # the render's cover
+    for method in ("paper", "overlap"):
+        warp = data[f"warp_{method}"].float()
+        assert warp.shape == (12, 4, 32, 32)
+        valid = warp[:, 3]
+        assert set(valid.unique().tolist()) <= {0.0, 1.0}
+        assert not (valid.bool() & (data["alpha"].float() < 0.5)).any()
+    assert data["warp_paper"][:, 3].float().mean() > 0.05  # the inputs see part of the targets
     raw, ref, fund, gt = curated_batch(data, torch.tensor([0, 5]), "overlap", "cpu")
     assert raw.dtype == torch.float32 and raw.shape == (2, 3, 32, 32)
     with pytest.raises(FileExistsError):
@@ -88,6 +97,10 @@ def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
                              lpips_weight=0.0, crop=16, flip=True, alpha=True, device="cpu")  # fmt: skip
     model = load_improver(train_improve(aug, progress=False, model_config=SMALL))
     assert model.config.alpha_input and model.config.working_size == 32
+    # and the warped reference (crops and flips move it with the render)
+    wcfg = ImproveTrainConfig(**{**aug.__dict__, "out": str(tmp_path / "warp"), "warp": True})
+    model = load_improver(train_improve(wcfg, progress=False, model_config=SMALL))
+    assert model.config.warp_input and model.config.alpha_input
     # resume to 6 steps: continues at step 4
     cfg6 = ImproveTrainConfig(**{**cfg.__dict__, "steps": 6})
     train_improve(cfg6, progress=False, model_config=SMALL)

@@ -88,3 +88,42 @@ def test_sizes_must_match_their_cameras():
         warp_reference(image, cam, cam, depth[:-1])
     with pytest.raises(ValueError, match="reference image"):
         warp_reference(image[:, :-1], cam, cam, depth)
+
+
+def test_render_view_hands_a_warp_model_the_warped_reference():
+    """render_view gives a warp-input model the reference warped through the rendered depth
+    (reference_warp), the same as calling enhance with it by hand; a model without the
+    input ignores it."""
+    from prosplat.demo_scene import demo_scene, orbit_cameras
+    from prosplat.enhance import enhance, render_view
+    from prosplat.improve import ImproveConfig, ImproveModel
+    from prosplat.improve.warp import reference_warp
+    from prosplat.render import render
+
+    torch.manual_seed(0)
+    gaussians, cams = demo_scene(size=32, n_inputs=2)
+    images = torch.stack([render(gaussians, c).rgb for c in cams])
+    target = orbit_cameras(3, 32, 32)[1]
+    cfg = ImproveConfig(
+        vae_channels=(16, 16), vae_groups=8, unet_channels=(16, 16, 16), unet_groups=8,
+        cross_attention_dim=16, alpha_input=True, warp_input=True, working_size=0,
+    )  # fmt: skip
+    model = ImproveModel(cfg).eval()
+    with torch.no_grad():
+        torch.nn.init.normal_(model.warp_in.weight, std=0.3)
+        torch.nn.init.normal_(model.vae.decoder.conv_out.weight, std=0.1)
+    view = render_view(gaussians, target, images, cams, model)
+    warp = reference_warp(
+        gaussians, target, view.depth, view.alpha, images[view.reference], cams[view.reference]
+    )
+    assert warp[3].mean() > 0.3  # the reference sees much of the target
+    by_hand = enhance(
+        model, view.raw, target, images[view.reference], cams[view.reference],
+        alpha=view.alpha, warp=warp, working_size=0,
+    )  # fmt: skip
+    torch.testing.assert_close(view.image, by_hand)
+    no_warp = enhance(
+        model, view.raw, target, images[view.reference], cams[view.reference],
+        alpha=view.alpha, working_size=0,
+    )  # fmt: skip
+    assert (view.image - no_warp).abs().max() > 1e-3

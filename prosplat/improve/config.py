@@ -67,6 +67,12 @@ class ImproveConfig:
             to its first features, so the model knows where it must fill rather than guess
             it from black pixels. Zero-initialised: weights without it load and behave the
             same (:func:`prosplat.improve.io.load_improver` with ``alpha_input=True``).
+        warp_input: the MORI reference warped into the view through the rendered depth, with
+            its validity mask (:func:`prosplat.improve.warp.reference_warp`, 4 channels),
+            enters the render's VAE encoder like the alpha: through a zero-initialised
+            convolution added to its first features. DWEA sees the reference only at the
+            bottleneck; the warp puts its texture on the pixel it belongs to. Zero-initialised:
+            weights without it load and behave the same (``load_improver(warp_input=True)``).
         padding: how every padded convolution extends the image: "zeros" (diffusers' default)
             or "replicate". Zero padding tells a network where the border is, and through
             many layers where every pixel is, which is how a model can stamp the same picture
@@ -96,6 +102,7 @@ class ImproveConfig:
     residual: bool = True
     working_size: int = 64
     alpha_input: bool = False
+    warp_input: bool = False
     padding: str = "zeros"
 
     def __post_init__(self) -> None:

@@ -28,11 +28,14 @@ def save_improver(
     return write_checkpoint(model.state_dict(), path, meta, overwrite)
 
 
-def load_improver(path: str | Path, device=None, alpha_input: bool = False) -> ImproveModel:
+def load_improver(
+    path: str | Path, device=None, alpha_input: bool = False, warp_input: bool = False
+) -> ImproveModel:
     """The :class:`ImproveModel` a checkpoint written by :func:`save_improver` describes.
 
-    ``alpha_input=True`` adds the (zero-initialised) alpha input to weights trained without
-    it, to fine-tune them with alpha: the model then behaves exactly as before."""
+    ``alpha_input=True`` / ``warp_input=True`` add the (zero-initialised) alpha / warped
+    reference input to weights trained without it, to fine-tune them with it: the model then
+    behaves exactly as before."""
     path = Path(path)
     state, meta = read_checkpoint(path, "improvement-model")
     if meta.get("format") != CHECKPOINT_FORMAT or "config" not in meta:
@@ -41,11 +44,17 @@ def load_improver(path: str | Path, device=None, alpha_input: bool = False) -> I
             "generator checkpoints load with ProSplat.from_pretrained(path)"
         )
     config = ImproveConfig.from_json(meta["config"])
-    adding = alpha_input and not config.alpha_input
-    model = ImproveModel(config.with_(alpha_input=True) if adding else config)
+    added = {
+        name: True
+        for name, wanted in (("alpha_input", alpha_input), ("warp_input", warp_input))
+        if wanted and not getattr(config, name)
+    }
+    adding = bool(added)
+    model = ImproveModel(config.with_(**added) if adding else config)
+    new_prefixes = tuple(f"{name.split('_')[0]}_in." for name in added)
     try:
         missing, unexpected = model.load_state_dict(state, strict=not adding)
-        if adding and (unexpected or any(not k.startswith("alpha_in.") for k in missing)):
+        if adding and (unexpected or any(not k.startswith(new_prefixes) for k in missing)):
             raise RuntimeError(f"missing {missing}, unexpected {unexpected}")
     except RuntimeError as e:
         raise ValueError(f"{path} does not match the improvement model it describes: {e}") from e

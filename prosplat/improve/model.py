@@ -120,6 +120,13 @@ class ImproveModel(nn.Module):
             self.alpha_in = nn.Conv2d(1, self.vae.config.block_out_channels[0], 3, padding=1)
             nn.init.zeros_(self.alpha_in.weight)
             nn.init.zeros_(self.alpha_in.bias)
+        self.warp_in = None
+        if config.warp_input:
+            # [B,4,H,W] warped reference (RGB in [-1,1]) + validity -> the first features; zero
+            # start = "no warp", so weights trained without it behave the same
+            self.warp_in = nn.Conv2d(4, self.vae.config.block_out_channels[0], 3, padding=1)
+            nn.init.zeros_(self.warp_in.weight)
+            nn.init.zeros_(self.warp_in.bias)
         if config.residual:
             nn.init.zeros_(self.vae.decoder.conv_out.weight)
             nn.init.zeros_(self.vae.decoder.conv_out.bias)
@@ -185,18 +192,26 @@ class ImproveModel(nn.Module):
         parts = {"vae": self.vae, "unet": self.unet, "skip_convs": self.skip_convs}
         if self.alpha_in is not None:
             parts["alpha_in"] = self.alpha_in
+        if self.warp_in is not None:
+            parts["warp_in"] = self.warp_in
         if self.dwea is not None:
             parts.update(dwea=self.dwea, injection=self.injection)
         return {k: sum(p.numel() for p in m.parameters()) for k, m in parts.items()}
 
     # ---- VAE with skips ---------------------------------------------------------------------
-    def encode(self, images: Tensor, alpha: Tensor | None = None) -> tuple[Tensor, list[Tensor]]:
-        """images [B,3,H,W] in [0,1] (+ alpha [B,1,H,W] with ``config.alpha_input``) ->
-        (scaled latent mode [B,c,h,w], encoder block inputs)."""
+    def encode(
+        self, images: Tensor, alpha: Tensor | None = None, warp: Tensor | None = None
+    ) -> tuple[Tensor, list[Tensor]]:
+        """images [B,3,H,W] in [0,1] (+ alpha [B,1,H,W] with ``config.alpha_input``, + warp
+        [B,4,H,W] with ``config.warp_input``) -> (scaled latent mode [B,c,h,w], encoder block
+        inputs)."""
         enc = self.vae.encoder
         x = enc.conv_in(images * 2.0 - 1.0)
         if alpha is not None and self.alpha_in is not None:
             x = x + self.alpha_in(alpha.to(x.dtype))
+        if warp is not None and self.warp_in is not None:
+            w = warp.to(x.dtype)
+            x = x + self.warp_in(torch.cat([w[:, :3] * 2.0 - 1.0, w[:, 3:]], dim=1))
         skips = []
         for block in enc.down_blocks:
             skips.append(x)
@@ -284,6 +299,7 @@ class ImproveModel(nn.Module):
         reference: Tensor | None = None,
         fundamental: Tensor | None = None,
         alpha: Tensor | None = None,
+        warp: Tensor | None = None,
     ) -> Tensor:
         """Enhance ``render [B,3,H,W]`` in [0,1].
 
@@ -293,6 +309,8 @@ class ImproveModel(nn.Module):
                 (pure rotation, coincident cameras) makes DWEA plain attention.
             alpha: the render's alpha [B,1,H,W] (used with ``config.alpha_input``; None there
                 is read as fully covered).
+            warp: the reference warped into the render's view, RGB in [0,1] + validity
+                [B,4,H,W] (used with ``config.warp_input``; None there is read as no warp).
 
         Returns:
             The enhanced images [B,3,H,W], clamped to [0,1].
@@ -300,7 +318,9 @@ class ImproveModel(nn.Module):
         self._check(render, reference)
         if self.alpha_in is not None and alpha is None:
             alpha = torch.ones_like(render[:, :1])
-        z, skips = self.encode(render, alpha)
+        if self.warp_in is not None and warp is None:
+            warp = torch.zeros_like(render[:, :1]).expand(-1, 4, -1, -1)
+        z, skips = self.encode(render, alpha, warp)
         emb = self._time_embedding(z)
         context = self.prompt_embedding.to(z.dtype).expand(z.shape[0], -1, -1)
         x, res = self._contract(z, emb, context)

@@ -83,3 +83,27 @@ def warp_reference(
         )[0, 0].to(f64)  # [H,W] the reference's own depth where the point lands
         valid &= (seen > 0) & ((z_ref - seen).abs() <= tolerance * seen)
     return warped, valid
+
+
+def reference_warp(
+    gaussians,
+    target_camera: Camera,
+    target_depth: Tensor,
+    target_alpha: Tensor,
+    reference: Tensor,
+    reference_camera: Camera,
+) -> Tensor:
+    """Stage 2's warp input [4,H,W]: the reference warped into the target through the depth
+    the Gaussians render there (RGB, border colour where invalid) and its validity (0/1).
+
+    The occlusion test uses the same Gaussians' depth rendered at ``reference_camera`` (at the
+    reference image's size), so it costs one more render per view.
+    """
+    from prosplat.render import render
+
+    with torch.no_grad():
+        ref_depth = render(gaussians, reference_camera).depth  # [h,w]
+        warped, valid = warp_reference(
+            reference, reference_camera, target_camera, target_depth, target_alpha, ref_depth
+        )
+    return torch.cat([warped, valid[None].to(warped.dtype)])  # [4,H,W]

@@ -290,17 +290,15 @@ def warp_paste_view(g, cam: Camera, inp: SceneInputs) -> View:
     (:func:`prosplat.improve.warp.warp_reference`, occlusion tested against their depth at
     the reference camera), the raw render where the warp is invalid: what a full-resolution
     reference injection could hand stage 2, with no learning."""
-    from prosplat.improve.warp import warp_reference
+    from prosplat.improve.warp import reference_warp
     from prosplat.render import render
 
     with torch.no_grad():
         out = render(g, cam)
-        j = select_reference(cam, inp.cameras, method="paper")
-        ref_depth = render(g, inp.cameras[j]).depth
-        warped, valid = warp_reference(
-            inp.images[j], inp.cameras[j], cam, out.depth, out.alpha, ref_depth
-        )
-    image = torch.where(valid[None], warped, out.rgb)
+    j = select_reference(cam, inp.cameras, method="paper")
+    warp = reference_warp(g, cam, out.depth, out.alpha, inp.images[j], inp.cameras[j])
+    valid = warp[3] > 0.5
+    image = torch.where(valid[None], warp[:3], out.rgb)
     info = {"reference": j, "warp_valid": float(valid.float().mean())}
     return View(image, out.depth, out.alpha, info=info)
 

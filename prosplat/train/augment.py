@@ -44,8 +44,9 @@ def augment_samples(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
     """Randomly crop (``crop`` px squares; 0 = none) and flip each sample of a batch.
 
-    ``render``/``reference``/``target`` [B,3,H,W], ``alpha`` [B,1,H,W] or None,
-    ``fundamental`` [B,3,3]. Render, alpha and target share one window; the reference gets
+    ``render``/``reference``/``target`` [B,3,H,W], ``alpha`` [B,C,H,W] (the render's alpha,
+    and any other channels pixel-aligned with the render) or None, ``fundamental`` [B,3,3].
+    Render, alpha and target share one window; the reference gets
     its own random window (it is another camera: what it shows is not pixel-aligned with the
     render anyway). Returns the same five, cropped to ``crop``.
     """

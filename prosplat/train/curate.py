@@ -23,6 +23,7 @@ from prosplat.data.scene import load_scene, resize_views
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
+from prosplat.improve.warp import reference_warp
 from prosplat.refine import refine
 from prosplat.render import render
 
@@ -31,6 +32,7 @@ KINDS = ("interpolation", "extrapolation")
 METHODS = ("paper", "overlap")
 
 #: Per sample: images [S,3,H,W] (float16 in [0,1]), alpha [S,H,W] (float16), F [S,3,3],
+#: warp [S,4,H,W] (float16: the reference warped through the rendered depth + validity),
 #: kind/inputs/scene [S] int.
 CuratedSet = dict[str, Tensor]
 
@@ -91,6 +93,8 @@ def curate_scene(
                 )
                 put(f"ref_{method}", scene.images[idx[j]].half())
                 put(f"F_{method}", fundamental_matrix(cam, cams[j]).float())
+                warp = reference_warp(gaussians, cam, out.depth, out.alpha, images[j], cams[j])
+                put(f"warp_{method}", warp.half())  # [4,H,W] for warp_input models
     return cols
 
 
@@ -174,6 +178,15 @@ def curated_alpha(data: CuratedSet, index: Tensor, device) -> Tensor | None:
     if "alpha" not in data:
         return None
     return data["alpha"][index].float().to(device)[:, None]
+
+
+def curated_warp(data: CuratedSet, index: Tensor, method: str, device) -> Tensor | None:
+    """The warped references [S,4,H,W] float32 (RGB + validity) for the samples ``index``, or
+    None for a set curated before the warp was stored."""
+    key = f"warp_{method}"
+    if key not in data:
+        return None
+    return data[key][index].float().to(device)
 
 
 def curated_batch(data: CuratedSet, index: Tensor, method: str, device) -> tuple[Tensor, ...]:

@@ -34,7 +34,7 @@ from prosplat.train.common import (
     step_indices,
     truncate_log,
 )
-from prosplat.train.curate import curated_alpha, curated_batch, load_curated
+from prosplat.train.curate import curated_alpha, curated_batch, curated_warp, load_curated
 from prosplat.train.generator import lr_at
 
 
@@ -70,6 +70,9 @@ class ImproveTrainConfig:
     crop: int = 0  # random square crops of this size (0: whole views; prosplat.train.augment)
     flip: bool = False  # random horizontal flips (the fundamental matrices follow)
     alpha: bool = False  # give the model the render's alpha (needs a set curated with alpha)
+    # give the model the reference warped through the rendered depth + its validity (needs
+    # sets curated with the warp; prosplat.improve.warp)
+    warp: bool = False
     padding: str = ""  # set the convolutions' padding ("zeros" | "replicate"; "": the model's)
 
 
@@ -187,6 +190,7 @@ def validate_improver(model: ImproveModel, data, method: str, device, limit: int
     idx = torch.arange(min(limit, data["render"].shape[0]))
     raw, ref, fund, gt = curated_batch(data, idx, method, device)
     alpha = curated_alpha(data, idx, device)
+    warp = curated_warp(data, idx, method, device) if model.config.warp_input else None
     enh = torch.cat(
         [
             model(
@@ -194,6 +198,7 @@ def validate_improver(model: ImproveModel, data, method: str, device, limit: int
                 ref[i : i + 8],
                 fund[i : i + 8],
                 None if alpha is None else alpha[i : i + 8],
+                None if warp is None else warp[i : i + 8],
             )  # fmt: skip
             for i in range(0, len(idx), 8)
         ]
@@ -229,7 +234,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             )
         model = from_diffusers(cfg.pretrained, timestep=cfg.timestep, reference=cfg.reference)
     elif cfg.init:
-        model = load_improver(cfg.init, alpha_input=cfg.alpha)
+        model = load_improver(cfg.init, alpha_input=cfg.alpha, warp_input=cfg.warp)
         asked = {"timestep": cfg.timestep, "denoise": cfg.denoise, "reference": cfg.reference}
         have = {k: getattr(model.config, k) for k in asked}
         if have != asked:
@@ -245,6 +250,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
                 denoise=cfg.denoise,
                 reference=cfg.reference,
                 alpha_input=cfg.alpha,
+                warp_input=cfg.warp,
             )
         )
     model.to(device).train()
@@ -253,6 +259,12 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         raise ValueError(
             f"--alpha needs curated sets with the renders' alpha; one of {cfg.data} has none "
             "(curate it again with this version of `prosplat train curate`)"
+        )
+    warp_key = f"warp_{cfg.reference_method}"
+    if cfg.warp and any(warp_key not in data for data in sets):
+        raise ValueError(
+            f"--warp needs curated sets with the warped references; one of {cfg.data} has "
+            "none (curate it again with this version of `prosplat train curate`)"
         )
     if cfg.crop and cfg.crop % model.config.size_multiple:
         raise ValueError(
@@ -282,11 +294,18 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             index = torch.tensor(idx)
             raw, ref, fund, gt = curated_batch(data, index, cfg.reference_method, device)
             alpha = curated_alpha(data, index, device) if cfg.alpha else None
+            warp = curated_warp(data, index, cfg.reference_method, device) if cfg.warp else None
             if cfg.crop or cfg.flip:
-                raw, ref, fund, gt, alpha = augment_samples(
-                    raw, ref, fund, gt, alpha, cfg.crop, cfg.flip, augment_rng
-                )
-            loss, parts = enhance_loss(net(raw, ref, fund, alpha), gt, lpips_fn, cfg.lpips_weight)
+                # alpha and warp are pixel-aligned with the render: one window, one flip
+                aligned = [x for x in (alpha, warp) if x is not None]
+                raw, ref, fund, gt, stacked = augment_samples(
+                    raw, ref, fund, gt, torch.cat(aligned, 1) if aligned else None, cfg.crop,
+                    cfg.flip, augment_rng,
+                )  # fmt: skip
+                alpha = stacked[:, :1] if alpha is not None else None
+                warp = stacked[:, -4:] if warp is not None else None
+            out = net(raw, ref, fund, alpha, warp)
+            loss, parts = enhance_loss(out, gt, lpips_fn, cfg.lpips_weight)
             extra = {}
             if val is not None and (run.step + 1) % cfg.val_every == 0:
                 extra = validate_improver(model, val, cfg.reference_method, device)
