@@ -367,10 +367,15 @@ def true_depth_view(state, cam: Camera, inp: SceneInputs, improver=None, dtype=N
     if improver is None:
         return View(raw, out.depth, out.alpha, info={"gaussians": len(surface)})
     j = select_reference(cam, inp.cameras, method="paper")
+    warp = None
+    if getattr(improver.config, "warp_input", False):
+        from prosplat.improve.warp import reference_warp
+
+        warp = reference_warp(surface, cam, out.depth, out.alpha, inp.images[j], inp.cameras[j])
     with torch.no_grad():
         image = enhance(
             improver, raw, cam, inp.images[j], inp.cameras[j], dtype or torch.float32,
-            alpha=out.alpha,
+            alpha=out.alpha, warp=warp,
         )  # fmt: skip
     return View(image, out.depth, out.alpha, info={"reference": j, "gaussians": len(surface)})
 
