@@ -61,8 +61,15 @@ def test_shipped_stage2_adds_no_fixed_pattern_and_no_lattice():
             blurred = F.avg_pool2d(sharp[None], 9, 1, 4, count_include_pad=False)[0]
             raw = (1 - haze) * blurred + haze * 0.6  # a washed-out render
             angle = 2 * math.pi * float(torch.rand(1, generator=g))
+            warp = None
+            if improver.config.warp_input:  # the reference landed on a random half-plane
+                lin = torch.linspace(-1, 1, SIZE)
+                yy, xx = torch.meshgrid(lin, lin, indexing="ij")
+                theta = 2 * math.pi * float(torch.rand(1, generator=g))
+                valid = (math.cos(theta) * xx + math.sin(theta) * yy > 0).float()
+                warp = torch.cat([sharp * valid, valid[None]])
             out = enhance(improver, raw, _orbit(angle), sharp, _orbit(angle + 0.4),
-                          alpha=torch.ones(SIZE, SIZE))  # fmt: skip
+                          alpha=torch.ones(SIZE, SIZE), warp=warp)  # fmt: skip
             assert out.shape == raw.shape and torch.isfinite(out).all()
             changes.append(out - raw)
     changes = torch.stack(changes)  # [VIEWS,3,SIZE,SIZE]
