@@ -148,6 +148,12 @@ def enhance(
     (:func:`prosplat.improve.warp.reference_warp`), for models with ``config.warp_input``.
     ``dtype=torch.bfloat16`` runs under CPU/GPU autocast (the output is float32 again).
     """
+    if warp is None and getattr(improver.config, "warp_input", False):
+        raise ValueError(
+            "this improvement model was trained with the warped reference (warp_input): pass "
+            "warp=prosplat.improve.warp.reference_warp(...) or render through render_view / "
+            "ProSplat.render, which compute it; without it the model's output is meaningless"
+        )
     h, w = raw.shape[-2:]
     size = improver.config.working_size if working_size is None else working_size
     if size and max(h, w) > size:

@@ -122,8 +122,18 @@ def test_render_view_hands_a_warp_model_the_warped_reference():
         alpha=view.alpha, warp=warp, working_size=0,
     )  # fmt: skip
     torch.testing.assert_close(view.image, by_hand)
+    zero = torch.zeros_like(warp)
     no_warp = enhance(
         model, view.raw, target, images[view.reference], cams[view.reference],
-        alpha=view.alpha, working_size=0,
+        alpha=view.alpha, warp=zero, working_size=0,
     )  # fmt: skip
     assert (view.image - no_warp).abs().max() > 1e-3
+    # forgetting the warp is an error, not a silently wrong picture
+    with pytest.raises(ValueError, match="warp"):
+        enhance(model, view.raw, target, images[view.reference], cams[view.reference])
+    # the working-size path carries the warp down with the render
+    small = enhance(
+        model, view.raw, target, images[view.reference], cams[view.reference],
+        alpha=view.alpha, warp=warp, working_size=16,
+    )  # fmt: skip
+    assert small.shape == view.image.shape and torch.isfinite(small).all()
