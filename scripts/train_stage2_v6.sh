@@ -1,23 +1,24 @@
 #!/usr/bin/env bash
-# Stage 2 v6 on the CPU: the shipped v5 fine-tuned on renders that all come from generator v2
-# (v5's refined sets were still made by v1; DESIGN.md: stage-2 weights follow the generator that
-# made their training renders). Same recipe as v5 (replicate padding, alpha input, 48-px crops,
-# flips, LPIPS weight 0.1, lr 2e-4).
-# Data (runs/s2v5/sets, scripts/curate_stage2_sets.sh): generator v2's raw renders at 64 and
-# 128 px and its Gaussians refined for 300 steps and rendered at 64 and 128 px, from
-# data/train128; validation val_ref128 (data/val128, 4 inputs).
+# Stage 2 v6 (shipped): the warped reference (ImproveConfig.warp_input). v5 upgraded by
+# load_improver(warp_input=True) (the new input starts at zero weights, so step 0 is v5) and
+# fine-tuned on generator v2's raw renders at 64 and 128 px, curated with
+# the reference warped through the rendered depth (prosplat.improve.warp). Same recipe as
+# v5/v6 otherwise (replicate padding, alpha, 48-px crops, flips, LPIPS weight 0.1).
 # Resumable: finished sets are kept, and re-running continues the training run.
-#   scripts/train_stage2_v6.sh [STEPS]   (default 3000; GEN= the generator, default the shipped
-#   v2; INIT= the starting stage 2, default the shipped v5; OUT= the run folder)
+# The control (the same run without --warp, runs/s2w/control) gained nothing: the warp is it.
+#   scripts/train_stage2_v6.sh [STEPS]   (default 3000; GEN= the generator, default v2 taken
+#   from git history; INIT= the starting stage 2, default v5 taken from git history; OUT=)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
-GEN=${GEN:-prosplat/weights/generator_tiny.safetensors}
-INIT=${INIT:-prosplat/weights/improve_tiny.safetensors}
-SETS=${SETS:-runs/s2v5/sets}
-OUT=${OUT:-runs/s2v6/run}
-GEN="$GEN" scripts/curate_stage2_sets.sh $SETS raw64 raw128 ref128 ref64 val_ref128
-$P train improve --data $SETS/raw64.safetensors,$SETS/ref64.safetensors,$SETS/raw128.safetensors,$SETS/ref128.safetensors \
-  --val $SETS/val_ref128.safetensors --out "$OUT" --init "$INIT" \
+GEN=${GEN:-runs/generator_v2.safetensors}
+INIT=${INIT:-runs/s2w/v5.safetensors}
+[ -f "$GEN" ] || { mkdir -p "$(dirname "$GEN")"; git show 17c555c:prosplat/weights/generator_tiny.safetensors > "$GEN"; }
+[ -f "$INIT" ] || { mkdir -p "$(dirname "$INIT")"; git show 17c555c:prosplat/weights/improve_tiny.safetensors > "$INIT"; }
+SETS=${SETS:-runs/s2w/sets}
+OUT=${OUT:-runs/s2w/run}
+GEN="$GEN" scripts/curate_stage2_sets.sh $SETS raw64 raw128 val_raw64
+$P train improve --data $SETS/raw64.safetensors,$SETS/raw128.safetensors \
+  --val $SETS/val_raw64.safetensors --out "$OUT" --init "$INIT" --warp \
   --padding replicate --alpha --crop 48 --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 100 \
   --lpips-weight 0.1 --val-every 500 --save-every 100 --log-every 50

@@ -12,9 +12,10 @@ lattice 16) for its centred row of green-and-yellow blobs, and v3 (fine-tuned fr
 never shipped) 4.0 / 7.8 / 1.8 for its grid of blobs; v4 scores 2.4 / 1.03 / 1.13, v5
 2.68 / 1.22 / 1.43, and v6 (shipped, with the warped reference; the half-plane draws shift
 the random sequence) 1.09 / 1.35 / 1.17. v6 given zeros for the invalid warp pixels,
-which no real warp has, changes views 3x more and scores 0.51 / 1.82 / 1.35. What the test cannot see: blobs whose place follows the content
-(v4 and v5 still paint some on the demo scene's washed-out renders; BENCHMARKS "Stage 2 v4",
-"Generator v2 on the CPU").
+which no real warp has, changes views 3x more and scores 0.51 / 1.82 / 1.35. What the test
+cannot see: blobs whose place follows the content (v4 and v5 still paint some on the demo
+scene's washed-out renders; BENCHMARKS "Stage 2 v4", "Generator v2 on the CPU"), or v6's
+dark bands along a broken-up warp mask (BENCHMARKS "Stage 2 v6 and generator v3").
 """
 
 from __future__ import annotations
