@@ -17,7 +17,8 @@ P=${PROSPLAT:-.venv/bin/prosplat}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 INIT=${INIT:-runs/generator_v2.safetensors}
 OUT=${OUT:-runs/gen_v3}
-[ -f "$INIT" ] || { mkdir -p "$(dirname "$INIT")"; git show 17c555c:prosplat/weights/generator_tiny.safetensors > "$INIT"; }
+. scripts/shipped_before.sh
+shipped_before "$INIT" generator_tiny.safetensors 17c555c  # generator v2
 $P train generator --data data/train128 --val data/val128 --config tiny --sizes 64 --any-view \
   --inputs 2,3,4,5,6 --targets 2 --lr 1.5e-4 --input-depth-weight 0.3 --depth-weight 0.1 \
   --input-render-weight 0.5 --target-scale 2 --grow-fine-matching 16 --init "$INIT" \

@@ -13,8 +13,9 @@ cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
 GEN=${GEN:-runs/generator_v2.safetensors}
 INIT=${INIT:-runs/s2w/v5.safetensors}
-[ -f "$GEN" ] || { mkdir -p "$(dirname "$GEN")"; git show 17c555c:prosplat/weights/generator_tiny.safetensors > "$GEN"; }
-[ -f "$INIT" ] || { mkdir -p "$(dirname "$INIT")"; git show 17c555c:prosplat/weights/improve_tiny.safetensors > "$INIT"; }
+. scripts/shipped_before.sh
+shipped_before "$GEN" generator_tiny.safetensors 17c555c  # generator v2
+shipped_before "$INIT" improve_tiny.safetensors 17c555c   # stage 2 v5
 SETS=${SETS:-runs/s2w/sets}
 OUT=${OUT:-runs/s2w/run}
 GEN="$GEN" scripts/curate_stage2_sets.sh $SETS raw64 raw128 val_raw64
