@@ -9,6 +9,7 @@ import torch
 from synthetic_scenes import write_synthetic_scene
 
 from prosplat import ProSplat
+from prosplat.checkpoints import write_checkpoint
 from prosplat.generator import GeneratorConfig
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.io import load_improver, save_improver
@@ -99,8 +100,24 @@ def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
     assert model.config.alpha_input and model.config.working_size == 32
     # and the warped reference (crops and flips move it with the render)
     wcfg = ImproveTrainConfig(**{**aug.__dict__, "out": str(tmp_path / "warp"), "warp": True})
-    model = load_improver(train_improve(wcfg, progress=False, model_config=SMALL))
+    warp_path = train_improve(wcfg, progress=False, model_config=SMALL)
+    model = load_improver(warp_path)
     assert model.config.warp_input and model.config.alpha_input
+    # a warp model is not fine-tuned without its warp, nor on sets that lack it
+    nowarp = ImproveTrainConfig(
+        **{**aug.__dict__, "out": str(tmp_path / "nw"), "init": str(warp_path)}
+    )
+    with pytest.raises(ValueError, match="pass --warp"):
+        train_improve(nowarp, progress=False)
+    data = load_curated(curated)
+    bare = tmp_path / "bare.safetensors"
+    write_checkpoint(
+        {k: v for k, v in data.items() if not k.startswith("warp_")}, bare,
+        {"format": "prosplat-curated"},
+    )  # fmt: skip
+    noset = ImproveTrainConfig(**{**wcfg.__dict__, "data": str(bare), "out": str(tmp_path / "ns")})
+    with pytest.raises(ValueError, match="warped references"):
+        train_improve(noset, progress=False, model_config=SMALL)
     # resume to 6 steps: continues at step 4
     cfg6 = ImproveTrainConfig(**{**cfg.__dict__, "steps": 6})
     train_improve(cfg6, progress=False, model_config=SMALL)

@@ -260,6 +260,10 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             f"--alpha needs curated sets with the renders' alpha; one of {cfg.data} has none "
             "(curate it again with this version of `prosplat train curate`)"
         )
+    if model.config.warp_input and not cfg.warp:
+        raise ValueError(
+            f"--init {cfg.init} was trained with the warped reference (warp_input); pass --warp"
+        )
     warp_key = f"warp_{cfg.reference_method}"
     if cfg.warp and any(warp_key not in data for data in sets):
         raise ValueError(
