@@ -251,14 +251,14 @@ def render_view(
         )
     depth = out.depth if reference_method == "overlap" else None
     ref = select_reference(camera, cameras, method=reference_method, target_depth=depth)
+    t2 = time.perf_counter()
     warp = None
-    if getattr(improver.config, "warp_input", False):
+    if getattr(improver.config, "warp_input", False):  # timed as part of the enhancement
         from prosplat.improve.warp import reference_warp
 
         warp = reference_warp(
             gaussians, camera, out.depth, out.alpha, images[ref], cameras[ref]
         )  # [4,H,W]
-    t2 = time.perf_counter()
     with torch.no_grad():
         image = enhance(
             improver,

@@ -306,7 +306,11 @@ def _render(gaussians, cam: Camera, bg: Tensor, cpu_backend: str = "cpu-fused"):
 
 
 def render_loss(
-    output, batch: dict[str, Tensor], cfg: TrainConfig, lpips_fn=None, cpu_backend="cpu-fused"
+    output,
+    batch: dict[str, Tensor],
+    cfg: TrainConfig,
+    lpips_fn=None,
+    cpu_backend: str = "cpu-fused",
 ) -> tuple[Tensor, dict[str, float]]:
     """Render every target view of every scene in the batch and compare with ground truth.
 
