@@ -32,7 +32,7 @@ from prosplat.flicker import camera_path, flicker
 from prosplat.image_io import write_image
 from prosplat.improve.mori import select_reference
 from prosplat.improve.pattern import fixed_pattern_score, lattice_score
-from prosplat.improve.warp import reference_warp
+from prosplat.improve.warp import warp_for
 from prosplat.metrics import LPIPS, psnr
 from prosplat.render import render
 
@@ -98,11 +98,9 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
                         "lpips_raw": float(lpips(r.rgb[None], gt[None])),
                     }
                     for label, improver in improvers.items():
-                        warp = None
-                        if getattr(improver.config, "warp_input", False):
-                            warp = reference_warp(
-                                g, cam, r.depth, r.alpha, inp_images[j], inp_cams[j]
-                            )
+                        warp = warp_for(
+                            improver, g, cam, r.depth, r.alpha, inp_images[j], inp_cams[j]
+                        )
                         for ws in args.working_sizes:
                             e = enhance(
                                 improver, r.rgb, cam, inp_images[j], inp_cams[j],

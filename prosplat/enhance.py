@@ -34,6 +34,7 @@ from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
+from prosplat.improve.warp import warp_for
 from prosplat.render import render
 
 
@@ -148,7 +149,7 @@ def enhance(
     (:func:`prosplat.improve.warp.reference_warp`), for models with ``config.warp_input``.
     ``dtype=torch.bfloat16`` runs under CPU/GPU autocast (the output is float32 again).
     """
-    if warp is None and getattr(improver.config, "warp_input", False):
+    if warp is None and improver.config.warp_input:
         raise ValueError(
             "this improvement model was trained with the warped reference (warp_input): pass "
             "warp=prosplat.improve.warp.reference_warp(...) or render through render_view / "
@@ -252,14 +253,11 @@ def render_view(
     depth = out.depth if reference_method == "overlap" else None
     ref = select_reference(camera, cameras, method=reference_method, target_depth=depth)
     t2 = time.perf_counter()
-    warp = None
-    if getattr(improver.config, "warp_input", False):  # timed as part of the enhancement
-        from prosplat.improve.warp import reference_warp
-
-        warp = reference_warp(
-            gaussians, camera, out.depth, out.alpha, images[ref], cameras[ref]
-        )  # [4,H,W]
     with torch.no_grad():
+        # [4,H,W] or None; timed as part of the enhancement
+        warp = warp_for(
+            improver, gaussians, camera, out.depth, out.alpha, images[ref], cameras[ref]
+        )
         image = enhance(
             improver,
             out.rgb,

@@ -117,6 +117,13 @@ def test_render_view_hands_a_warp_model_the_warped_reference():
         gaussians, target, view.depth, view.alpha, images[view.reference], cams[view.reference]
     )
     assert warp[3].mean() > 0.3  # the reference sees much of the target
+    # a caller that already rendered the reference's depth (curation) gets the same warp
+    ref_depth = render(gaussians, cams[view.reference]).depth
+    given = reference_warp(
+        gaussians, target, view.depth, view.alpha, images[view.reference],
+        cams[view.reference], ref_depth,
+    )  # fmt: skip
+    assert torch.equal(given, warp)
     by_hand = enhance(
         model, view.raw, target, images[view.reference], cams[view.reference],
         alpha=view.alpha, warp=warp, working_size=0,

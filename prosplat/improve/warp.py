@@ -92,18 +92,41 @@ def reference_warp(
     target_alpha: Tensor,
     reference: Tensor,
     reference_camera: Camera,
+    reference_depth: Tensor | None = None,
 ) -> Tensor:
     """Stage 2's warp input [4,H,W]: the reference warped into the target through the depth
     the Gaussians render there (RGB, border colour where invalid) and its validity (0/1).
 
     The occlusion test uses the same Gaussians' depth rendered at ``reference_camera`` (at the
-    reference image's size), so it costs one more render per view.
+    reference image's size): one more render per view, unless the caller passes that depth
+    ``[h,w]`` (``reference_depth``), as curation does for the targets that share a reference.
     """
     from prosplat.render import render
 
     with torch.no_grad():
-        ref_depth = render(gaussians, reference_camera).depth  # [h,w]
+        if reference_depth is None:
+            reference_depth = render(gaussians, reference_camera).depth  # [h,w]
         warped, valid = warp_reference(
-            reference, reference_camera, target_camera, target_depth, target_alpha, ref_depth
-        )
+            reference, reference_camera, target_camera, target_depth, target_alpha,
+            reference_depth,
+        )  # fmt: skip
     return torch.cat([warped, valid[None].to(warped.dtype)])  # [4,H,W]
+
+
+def warp_for(
+    improver,
+    gaussians,
+    target_camera: Camera,
+    target_depth: Tensor,
+    target_alpha: Tensor,
+    reference: Tensor,
+    reference_camera: Camera,
+) -> Tensor | None:
+    """:func:`reference_warp` when ``improver`` takes it (``config.warp_input``), else None:
+    what every caller of :func:`prosplat.enhance.enhance` that holds the Gaussians passes as
+    its ``warp``."""
+    if not improver.config.warp_input:
+        return None
+    return reference_warp(
+        gaussians, target_camera, target_depth, target_alpha, reference, reference_camera
+    )

@@ -36,6 +36,7 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.improve.mori import select_reference
+from prosplat.improve.warp import reference_warp, warp_for
 from prosplat.ladder.geometry import true_depth_gaussians
 
 
@@ -290,7 +291,6 @@ def warp_paste_view(g, cam: Camera, inp: SceneInputs) -> View:
     (:func:`prosplat.improve.warp.warp_reference`, occlusion tested against their depth at
     the reference camera), the raw render where the warp is invalid: what a full-resolution
     reference injection could hand stage 2, with no learning."""
-    from prosplat.improve.warp import reference_warp
     from prosplat.render import render
 
     with torch.no_grad():
@@ -367,11 +367,7 @@ def true_depth_view(state, cam: Camera, inp: SceneInputs, improver=None, dtype=N
     if improver is None:
         return View(raw, out.depth, out.alpha, info={"gaussians": len(surface)})
     j = select_reference(cam, inp.cameras, method="paper")
-    warp = None
-    if getattr(improver.config, "warp_input", False):
-        from prosplat.improve.warp import reference_warp
-
-        warp = reference_warp(surface, cam, out.depth, out.alpha, inp.images[j], inp.cameras[j])
+    warp = warp_for(improver, surface, cam, out.depth, out.alpha, inp.images[j], inp.cameras[j])
     with torch.no_grad():
         image = enhance(
             improver, raw, cam, inp.images[j], inp.cameras[j], dtype or torch.float32,

@@ -78,6 +78,7 @@ def curate_scene(
             gaussians = full.gaussians(0)
             same_size = gen_images.shape[-2:] == images.shape[-2:]
             input_depths = full.depths[0] if same_size else None  # MORI needs input-size maps
+        ref_depths: dict[int, Tensor] = {}  # input j -> the Gaussians' depth there [H,W]
         for t in scene.target_indices:
             cam = scene.cameras[t]
             with torch.no_grad():
@@ -93,7 +94,12 @@ def curate_scene(
                 )
                 put(f"ref_{method}", scene.images[idx[j]].half())
                 put(f"F_{method}", fundamental_matrix(cam, cams[j]).float())
-                warp = reference_warp(gaussians, cam, out.depth, out.alpha, images[j], cams[j])
+                if j not in ref_depths:  # targets (and both methods) share a few inputs
+                    with torch.no_grad():
+                        ref_depths[j] = render(gaussians, cams[j]).depth
+                warp = reference_warp(
+                    gaussians, cam, out.depth, out.alpha, images[j], cams[j], ref_depths[j]
+                )
                 put(f"warp_{method}", warp.half())  # [4,H,W] for warp_input models
     return cols
 
