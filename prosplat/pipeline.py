@@ -565,3 +565,35 @@ class ProSplat:
             dtype=dtype,
             options=options,
         )
+
+    def distill(
+        self,
+        gaussians: Gaussians,
+        view_cameras: Sequence[Camera],
+        images: Tensor,
+        cameras: Sequence[Camera],
+        *,
+        steps: int | None = None,
+        seconds: float | None = None,
+        progress=None,
+        cancel=None,
+        dtype: torch.dtype = torch.float32,
+    ):
+        """Gaussians that show every camera of ``view_cameras`` as the improvement model
+        enhances it, consistently (:func:`prosplat.distill.distill_enhanced`): each view is
+        enhanced, then ``gaussians`` are refined against the inputs (``images [N,3,H,W]``,
+        ``cameras``) and those views together for ``steps`` (default 400) or ``seconds``.
+        Render the result's ``gaussians`` raw at the view cameras: frames of a camera path
+        then agree with each other, which views enhanced one by one do not.
+
+        Raises:
+            ValueError: no improvement model loaded, no view cameras, or a view camera whose
+                aspect ratio differs from the inputs'.
+        """
+        from prosplat.distill import distill_enhanced
+
+        check_images(images, "images")
+        return distill_enhanced(
+            gaussians, images, cameras, view_cameras, self.improver, steps=steps,
+            seconds=seconds, progress=progress, cancel=cancel, dtype=dtype,
+        )  # fmt: skip

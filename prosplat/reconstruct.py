@@ -14,7 +14,9 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
 4. reconstructs (optionally refining, ``--refine-steps/--refine-seconds``), prunes to the
    Gaussian budget and writes ``gaussians.ply``;
 5. renders ``--render`` cameras (``held-out``, ``all``, ``none``, names, or a camera path:
-   a ``transforms.json`` of pinhole cameras) raw and enhanced;
+   a ``transforms.json`` of pinhole cameras) raw and enhanced, and with ``--distill-steps``
+   once more from the Gaussians fitted to the inputs and those enhanced views
+   (:mod:`prosplat.distill`: views that agree with each other);
 6. writes ``report.md`` and ``transforms.json`` (the undistorted, resized inputs, in
    ``inputs/``), so the result opens in Blender with its cameras.
 
@@ -130,6 +132,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=8,
         help="render at most this many held-out cameras, evenly spread (default 8; 0 = all)",
+    )
+    p.add_argument(
+        "--distill-steps",
+        type=int,
+        default=0,
+        help="fit the Gaussians to the inputs and the enhanced renders together for N steps "
+        "(prosplat.distill; 400 measured best) and render every camera again from them: "
+        "NAME_distilled.png and gaussians_distilled.ply, views that agree with each other "
+        "(a camera path does not flicker); default 0: off",
     )
 
 
@@ -336,6 +347,13 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     path = path_cameras(args.render, size)
     model = load_model(args)
     refine_kwargs(model, args.refine_steps, args.refine_seconds)  # fail before any work
+    if args.distill_steps < 0:
+        raise ValueError(f"--distill-steps must be >= 0 (0: off), got {args.distill_steps}")
+    if args.distill_steps and (model.improver is None or not which and not path):
+        raise ValueError(
+            "--distill-steps fits the enhanced renders: it needs an improvement model and "
+            "cameras to render (--render)"
+        )
     images, cameras = load_views(posed, inputs, size, background, progress=True)
     near, far, nf_source = near_far(posed, inputs, cameras, args.near, args.far)
     names = [posed.views[i].name for i in inputs]
@@ -353,7 +371,7 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
         frames.append(Frame(cam, f"inputs/{name}.png"))
     write_transforms(out / "transforms.json", frames, {"near": near, "far": far}, args.overwrite)
 
-    rendered, rows = [], []
+    rendered, rows, enhanced = [], [], []
     t0 = time.perf_counter()
     todo = [(posed.views[i].name, view_camera(posed.views[i], size),
              "input" if i in inputs else "held-out") for i in which]  # fmt: skip
@@ -366,9 +384,14 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
         write_image(out / "renders" / f"{name}_raw.png", r.raw, overwrite=args.overwrite)
         if enhance:
             write_image(out / "renders" / f"{name}_enhanced.png", r.image, overwrite=args.overwrite)
+            enhanced.append((cam, r.image))
         rendered.append(name)
         rows.append((name, kind, names[r.reference] if r.reference is not None else "-"))
     t_views = time.perf_counter() - t0
+    if args.distill_steps:
+        t0 = time.perf_counter()
+        note += _distill_renders(g, images, cameras, todo, enhanced, background, args)
+        t_views += time.perf_counter() - t0
     result = ReconstructResult(
         out=out,
         inputs=names,
@@ -384,6 +407,40 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     result.timings["total"] = time.perf_counter() - t_start
     _write_report(result, posed, note, rows, args)
     return result
+
+
+def _distill_renders(g, images, cameras, todo, enhanced, background, args) -> str:
+    """``--distill-steps``: fit ``g`` to the inputs and the enhanced renders of the cameras
+    with the inputs' aspect ratio (refinement fits views of one size), write
+    ``gaussians_distilled.ply`` and every camera's render from it; returns a note for the
+    report."""
+    from prosplat.distill import distill
+    from prosplat.image_io import write_image
+    from prosplat.ply import write_ply
+    from prosplat.refine import RefineOptions
+    from prosplat.render import render
+
+    h, w = images.shape[-2:]
+    same = [(c, im) for c, im in enhanced if abs(c.width * h - c.height * w) <= 0.01 * c.height * w]
+    if not same:
+        raise ValueError("--distill-steps: no rendered camera has the inputs' aspect ratio")
+    views = torch.stack([im for _, im in same])
+    steps = args.distill_steps
+    print(f"distilling {len(same)} enhanced views into the Gaussians ({steps} steps)")
+    # fitted over the background the renders were composited on (white for NeRF-synthetic)
+    options = RefineOptions(background=tuple(float(x) for x in background))
+    result = distill(g, images, cameras, views, [c for c, _ in same], steps=steps, options=options)
+    write_ply(result.gaussians, args.out / "gaussians_distilled.ply", overwrite=args.overwrite)
+    for name, cam, _ in todo:
+        with torch.no_grad():
+            rgb = render(result.gaussians, cam, background=background).rgb.clamp(0, 1)
+        write_image(args.out / "renders" / f"{name}_distilled.png", rgb, overwrite=args.overwrite)
+    skipped = len(enhanced) - len(same)
+    return (
+        f"; distilled {result.stats.steps} steps from {len(same)} enhanced views"
+        + (f" ({skipped} of another aspect ratio rendered, not fitted)" if skipped else "")
+        + " into `gaussians_distilled.ply`"
+    )
 
 
 def _write_report(result: ReconstructResult, posed, note: str, rows, args) -> None:
@@ -406,13 +463,16 @@ def _write_report(result: ReconstructResult, posed, note: str, rows, args) -> No
         "",
     ]
     if rows:
+        distilled = bool(getattr(args, "distill_steps", 0))
         lines += [
-            "| view | kind | MORI reference | raw | enhanced |",
-            "|---|---|---|---|---|",
+            "| view | kind | MORI reference | raw | enhanced |"
+            + (" distilled |" if distilled else ""),
+            "|---|---|---|---|---|" + ("---|" if distilled else ""),
         ]
         for name, kind, ref in rows:
             enh = f"![](renders/{name}_enhanced.png)" if ref != "-" else "-"
-            lines.append(f"| {name} | {kind} | {ref} | ![](renders/{name}_raw.png) | {enh} |")
+            line = f"| {name} | {kind} | {ref} | ![](renders/{name}_raw.png) | {enh} |"
+            lines.append(line + (f" ![](renders/{name}_distilled.png) |" if distilled else ""))
         lines.append("")
     opts = {k: v for k, v in vars(args).items() if k != "func" and not k.endswith("_command")}
     lines.append("options: " + ", ".join(f"`{k}={v}`" for k, v in opts.items() if k != "command"))

@@ -231,3 +231,43 @@ def test_pad_to_multiple_replicates_edges() -> None:
     assert torch.equal(y[..., :3, :4], x)
     assert torch.equal(y[..., 7, 7], x[..., 2, 3])
     assert math.isclose(float(y[0, 0, 0, 7]), 3.0)
+
+
+def test_epipolar_switch_makes_dwea_plain_attention() -> None:
+    """``epipolar=False`` (the "plain" ablation row) ignores F: the output is DWEA with no
+    fundamental matrix, and differs from the epipolar-weighted one for a real camera pair."""
+    torch.manual_seed(0)
+    model = ImproveModel(SMALL).eval()
+    _perturb(model)
+    with torch.no_grad():  # a DWEA strong enough for its weighting to show at the output
+        for p in [*model.dwea.parameters(), *model.injection.parameters()]:
+            p.normal_(0.0, 1.0)
+    a, b = _pair()
+    f = fundamental_matrix(a, b).float()[None]
+    x, ref = torch.rand(1, 3, 32, 32), torch.rand(1, 3, 32, 32)
+    with torch.no_grad():
+        weighted, plain = model(x, ref, f), model(x, ref, None)
+        model.config = model.config.with_(epipolar=False)
+        off = model(x, ref, f)
+    torch.testing.assert_close(off, plain, rtol=0, atol=1e-6)
+    assert float((weighted - plain).abs().max()) > 1e-5  # 100x the float noise
+
+
+def test_load_improver_can_drop_the_reference(tmp_path) -> None:
+    """The "none" and "warp" ablation rows start from a reference model's weights without
+    DWEA: every other weight loads unchanged, and the model runs without a reference."""
+    torch.manual_seed(0)
+    full = ImproveModel(SMALL).eval()
+    _perturb(full)
+    path = save_improver(full, tmp_path / "full.safetensors")
+    bare = load_improver(path, drop_reference=True, warp_input=True)
+    assert not bare.config.reference and bare.config.warp_input and bare.dwea is None
+    kept = bare.state_dict()
+    for name, value in full.state_dict().items():
+        if name.startswith(("dwea.", "injection.")):
+            assert name not in kept
+        else:
+            assert torch.equal(kept[name], value), name
+    with torch.no_grad():
+        out = bare(torch.rand(1, 3, 32, 32))
+    assert out.shape == (1, 3, 32, 32) and torch.isfinite(out).all()

@@ -382,6 +382,7 @@ def test_eval_ladder_end_to_end(data, tmp_path, capsys):
         (["--views", "5"], "has 4 input views, cannot evaluate 5"),
         (["--refine-steps", "0"], "--refine-steps: [0] must be >= 1"),
         (["--refine-seconds", "0"], "--refine-seconds: [0.0] must be > 0"),
+        (["--distill-steps", "0"], "--distill-steps: [0] must be >= 1"),
         (["--generator-size", "48"], "--generator-size 48 is not a multiple of 32"),
     ],
 )
@@ -415,6 +416,32 @@ def test_refine_rows_fit_the_inputs_from_a_smaller_generator_run(data):
     messages = []
     assert build_rungs(["refine"], LadderContext(), log=messages.append) == []
     assert "--refine-steps" in messages[0]
+
+
+def test_distill_rows_fit_the_enhanced_targets_of_the_scene(data):
+    """The distill rows see every target camera of the scene at once (run_rungs hands them
+    over, never their images): the distilled Gaussians come out of one fit to the inputs and
+    the enhanced targets, shared by the raw and the enhanced row."""
+    from prosplat.ladder.run import run_rungs
+
+    ctx = LadderContext({"generator_size": 32, "distill_steps": [6]})
+    rungs = build_rungs(["distill"], ctx)
+    assert [r.name for r in rungs] == ["distill 6", "distill 6 enhanced"]
+    assert rungs[0].shares == rungs[1].shares and not rungs[0].warmup
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    cams = [scene.cameras[t] for t in scene.target_indices[:2]]
+    out = list(run_rungs(rungs, inp, cams))
+    assert [(r.name, k) for r, k, *_ in out] == [
+        ("distill 6", 0), ("distill 6", 1), ("distill 6 enhanced", 0), ("distill 6 enhanced", 1)
+    ]  # fmt: skip
+    assert out[0][3] == out[2][3] > 0  # one reconstruction, timed once
+    with pytest.raises(ValueError, match="no view cameras"):
+        rungs[0].reconstruct(inp)  # outside run_rungs nobody named the cameras
+    messages = []
+    assert build_rungs(["distill"], LadderContext(), log=messages.append) == []
+    assert "--distill-steps" in messages[0]
 
 
 def test_demo_report_scores_the_same_ladder(data):

@@ -261,6 +261,31 @@ def test_render_a_camera_path(colmap_text, tmp_path):
     assert "camera path" in (out / "report.md").read_text()
 
 
+def test_distill_steps_fit_the_enhanced_renders(colmap_text, tmp_path, capsys):
+    """--distill-steps renders every camera again from the Gaussians fitted to the inputs and
+    the enhanced renders: closer to the enhanced views than the raw renders were, written
+    beside them with their own PLY; nothing to fit is a one-line error."""
+    out = tmp_path / "out"
+    assert cli("reconstruct", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
+               "--render", "all", "--distill-steps", "150") == 0  # fmt: skip
+    assert read_ply(out / "gaussians_distilled.ply").means.shape == (
+        read_ply(out / "gaussians.ply").means.shape
+    )
+    gaps = []
+    for name in ("001", "002", "003"):
+        raw, enh, dis = (read_image(out / "renders" / f"{name}_{k}.png")
+                         for k in ("raw", "enhanced", "distilled"))  # fmt: skip
+        gaps.append((float((raw - enh).abs().mean()), float((dis - enh).abs().mean())))
+    assert sum(d for _, d in gaps) < 0.7 * sum(r for r, _ in gaps), gaps
+    report = (out / "report.md").read_text()
+    assert "distilled 150 steps from 5 enhanced views" in report
+    assert "![](renders/001_distilled.png)" in report
+    capsys.readouterr()
+    assert cli("reconstruct", colmap_text, "--out", tmp_path / "none", "--size", "32",
+               "--render", "none", "--distill-steps", "10") == 2  # fmt: skip
+    assert "needs an improvement model and cameras" in _one_line_error(capsys, "reconstruct")
+
+
 def test_reconstruct_nerf_synthetic_rgba_says_white(tmp_path):
     alpha = torch.ones(32, 32)
     alpha[:, :8] = 0

@@ -118,6 +118,18 @@ def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
     noset = ImproveTrainConfig(**{**wcfg.__dict__, "data": str(bare), "out": str(tmp_path / "ns")})
     with pytest.raises(ValueError, match="warped references"):
         train_improve(noset, progress=False, model_config=SMALL)
+    # the injection ablation rows start from the same weights: DWEA dropped ("warp": the warp
+    # alone) or its epipolar weighting off ("plain"), recorded in the saved config
+    only = ImproveTrainConfig(**{**wcfg.__dict__, "out": str(tmp_path / "wo"),
+                                 "init": str(warp_path), "reference": False})  # fmt: skip
+    model = load_improver(train_improve(only, progress=False))
+    assert not model.config.reference and model.config.warp_input and model.dwea is None
+    plain = ImproveTrainConfig(**{**wcfg.__dict__, "out": str(tmp_path / "pl"),
+                                  "init": str(warp_path), "epipolar": False})  # fmt: skip
+    model = load_improver(train_improve(plain, progress=False))
+    assert model.config.reference and not model.config.epipolar
+    with pytest.raises(ValueError, match="save-every"):
+        ImproveTrainConfig(data=str(curated), out=str(tmp_path / "x"), save_every=0)
     # resume to 6 steps: continues at step 4
     cfg6 = ImproveTrainConfig(**{**cfg.__dict__, "steps": 6})
     train_improve(cfg6, progress=False, model_config=SMALL)

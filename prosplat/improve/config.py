@@ -46,6 +46,10 @@ class ImproveConfig:
             noise prediction (one-step diffusion); off = the U-Net output is the new latent
             (the paper's "VAE + U-Net" baseline).
         reference: fuse the MORI reference view through DWEA at the U-Net bottleneck.
+        epipolar: DWEA weights its attention by the distance to each target position's
+            epipolar line (the paper's design); off, the fundamental matrix is ignored and
+            DWEA is plain cross-attention to the reference (issue 13's "plain" ablation row).
+            A switch of behaviour, not of weights: the same weights load either way.
         dwea_heads: attention heads of DWEA.
         vae_skip: pix2pix-turbo's encoder -> decoder skip connections (1x1 convolutions).
         skip_init: the constant those 1x1 convolutions start at ("near zero").
@@ -96,6 +100,7 @@ class ImproveConfig:
     timestep: int = 199
     denoise: bool = True
     reference: bool = True
+    epipolar: bool = True
     dwea_heads: int = 1
     vae_skip: bool = True
     skip_init: float = 1e-5

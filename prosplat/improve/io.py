@@ -29,13 +29,18 @@ def save_improver(
 
 
 def load_improver(
-    path: str | Path, device=None, alpha_input: bool = False, warp_input: bool = False
+    path: str | Path,
+    device=None,
+    alpha_input: bool = False,
+    warp_input: bool = False,
+    drop_reference: bool = False,
 ) -> ImproveModel:
     """The :class:`ImproveModel` a checkpoint written by :func:`save_improver` describes.
 
     ``alpha_input=True`` / ``warp_input=True`` add the (zero-initialised) alpha / warped
     reference input to weights trained without it, to fine-tune them with it: the model then
-    behaves exactly as before."""
+    behaves exactly as before. ``drop_reference=True`` leaves DWEA out (its weights are not
+    loaded), for the ablation rows without the reference that start from the same weights."""
     path = Path(path)
     state, meta = read_checkpoint(path, "improvement-model")
     if meta.get("format") != CHECKPOINT_FORMAT or "config" not in meta:
@@ -49,9 +54,13 @@ def load_improver(
         for name, wanted in (("alpha_input", alpha_input), ("warp_input", warp_input))
         if wanted and not getattr(config, name)
     }
+    dropped = ("dwea.", "injection.") if drop_reference and config.reference else ()
+    if dropped:
+        state = {k: v for k, v in state.items() if not k.startswith(dropped)}
+        added["reference"] = False
     adding = bool(added)
     model = ImproveModel(config.with_(**added) if adding else config)
-    new_prefixes = tuple(f"{name.split('_')[0]}_in." for name in added)
+    new_prefixes = tuple(f"{name.split('_')[0]}_in." for name in added if name != "reference")
     try:
         missing, unexpected = model.load_state_dict(state, strict=not adding)
         if adding and (unexpected or any(not k.startswith(new_prefixes) for k in missing)):

@@ -328,8 +328,10 @@ class ImproveModel(nn.Module):
         if self.dwea is not None:
             z_ref, _ = self.encode(reference)
             x_ref, _ = self._contract(z_ref, emb, context)
-            # F stays in its own (float32/64) precision: DWEA computes distances in float64
-            x = self.dwea(x, x_ref, fundamental, float(self.config.bottleneck_stride))
+            # F stays in its own (float32/64) precision: DWEA computes distances in float64;
+            # none: plain attention (the epipolar ablation)
+            f = fundamental if self.config.epipolar else None
+            x = self.dwea(x, x_ref, f, float(self.config.bottleneck_stride))
             inject = self.injection(x)
         eps = self._expand(x, res, emb, context, inject)
         z_out = self.one_step(z, eps) if self.config.denoise else eps

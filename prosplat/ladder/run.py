@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -127,6 +127,7 @@ def run_rungs(
     improve``, ``bench points`` and the demo all score their reference rows through it.
     """
     states: dict[str, tuple[object, float]] = {}
+    inputs = replace(inputs, view_cameras=tuple(cameras))
     for rung in rungs:
         key = rung.shares or rung.name
         if key not in states:

@@ -53,6 +53,9 @@ class SceneInputs:
     depths: Tensor | None
     near: float
     far: float
+    #: the cameras the rows will render (never their images): what a user asking for a set
+    #: of views hands over, for the rungs that treat the views together (distill)
+    view_cameras: tuple[Camera, ...] = ()
 
 
 @dataclass
@@ -339,6 +342,37 @@ def refine_rungs(ctx: LadderContext) -> list[Rung]:
 
     rungs = [r for n in steps for r in make(f"refine {n}", n, None)]
     return rungs + [r for sec in seconds for r in make(f"refine {sec:g} s", None, sec)]
+
+
+@register("distill")
+def distill_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's Gaussians distilled (:mod:`prosplat.distill`): every target camera
+    enhanced, then the Gaussians refined against the inputs and those views for each
+    ``--distill-steps`` count; rows ``distill N`` (the distilled Gaussians' raw render, the
+    consistent answer) and ``distill N enhanced`` (enhanced once more). The enhancement of
+    every view and the refinement are timed as the reconstruction."""
+    steps = [int(n) for n in ctx.options.get("distill_steps") or []]
+    if not steps:
+        raise SkipRung("no distillation asked for; pass --distill-steps 400")
+    improver, dtype = ctx.improver("distill"), _dtype(ctx)
+
+    def make(n: int) -> list[Rung]:
+        def reconstruct(inp: SceneInputs):
+            from prosplat.distill import distill_enhanced
+
+            g = _generator_gaussians(ctx)(inp)
+            return distill_enhanced(
+                g, inp.images, inp.cameras, inp.view_cameras, improver, steps=n, dtype=dtype
+            ).gaussians
+
+        label = f"distill {n}"
+        return [
+            Rung(label, reconstruct, splat_view, label, depth=True, warmup=False),
+            Rung(f"{label} enhanced", reconstruct, _enhanced_view(improver, dtype), label,
+                 depth=True, warmup=False),
+        ]  # fmt: skip
+
+    return [r for n in steps for r in make(n)]
 
 
 def _true_depth(inp: SceneInputs):

@@ -49,6 +49,17 @@ STATE_NAME = "state.pt"
 
 
 # ---- devices and torch.distributed ----------------------------------------------------------
+def check_intervals(cfg, *names: str) -> None:
+    """Refuse step intervals below 1 (``--save-every 0`` would divide by zero mid-run): a
+    training config's ``__post_init__`` calls it so the run fails before its first step."""
+    for name in names:
+        value = getattr(cfg, name)
+        if int(value) != value or value < 1:
+            raise ValueError(
+                f"--{name.replace('_', '-')} must be a whole number of steps >= 1, got {value}"
+            )
+
+
 def pick_device(name: str = "auto", local_rank: int | None = None) -> torch.device:
     """``auto`` → this process's GPU (``LOCAL_RANK`` under torchrun) if CUDA works, else CPU.
 

@@ -63,6 +63,7 @@ from prosplat.camera import Camera
 from prosplat.render import render
 from prosplat.train.common import (
     Dist,
+    check_intervals,
     draw_count,
     load_checkpoint,
     pick_device,
@@ -253,6 +254,7 @@ class TrainConfig:
     device: str = "auto"
 
     def __post_init__(self) -> None:
+        check_intervals(self, "log_every", "val_every", "save_every")
         input_counts(self.inputs)  # fail at construction, not at the first step
         train_sizes(self.sizes)
         if self.stop_at is not None and self.stop_at < 1:

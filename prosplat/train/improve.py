@@ -28,6 +28,7 @@ from prosplat.improve.model import ImproveModel
 from prosplat.train.augment import augment_samples
 from prosplat.train.common import (
     Dist,
+    check_intervals,
     load_checkpoint,
     save_checkpoint,
     setup_distributed,
@@ -59,6 +60,8 @@ class ImproveTrainConfig:
     timestep: int = 199
     denoise: bool = True
     reference: bool = True
+    # DWEA's epipolar weighting (off: plain attention, the ablation row; ImproveConfig.epipolar)
+    epipolar: bool = True
     reference_method: str = "paper"  # "paper" | "overlap"
     grad_clip: float = 1.0
     warmup: int = 100
@@ -74,6 +77,9 @@ class ImproveTrainConfig:
     # sets curated with the warp; prosplat.improve.warp)
     warp: bool = False
     padding: str = ""  # set the convolutions' padding ("zeros" | "replicate"; "": the model's)
+
+    def __post_init__(self) -> None:
+        check_intervals(self, "log_every", "val_every", "save_every")
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,9 @@ class JointTrainConfig:
     save_every: int = 100
     seed: int = 0
     device: str = "auto"
+
+    def __post_init__(self) -> None:
+        check_intervals(self, "log_every", "save_every")
 
 
 def enhance_loss(pred: Tensor, target: Tensor, lpips_fn, weight: float) -> tuple[Tensor, dict]:
@@ -234,7 +243,11 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             )
         model = from_diffusers(cfg.pretrained, timestep=cfg.timestep, reference=cfg.reference)
     elif cfg.init:
-        model = load_improver(cfg.init, alpha_input=cfg.alpha, warp_input=cfg.warp)
+        # --no-reference from a reference model: the ablation row starts from the same
+        # weights, DWEA left out
+        model = load_improver(
+            cfg.init, alpha_input=cfg.alpha, warp_input=cfg.warp, drop_reference=not cfg.reference
+        )
         asked = {"timestep": cfg.timestep, "denoise": cfg.denoise, "reference": cfg.reference}
         have = {k: getattr(model.config, k) for k in asked}
         if have != asked:
@@ -242,6 +255,8 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
                 f"--init {cfg.init} was trained with {have} but this run asks for {asked}; "
                 "pass the same --timestep/--denoise/--reference or start without --init"
             )
+        # a switch of behaviour read on every forward: the same weights serve either way
+        model.config = model.config.with_(epipolar=cfg.epipolar)
     else:
         base = model_config or preset(cfg.config)
         model = ImproveModel(
@@ -249,6 +264,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
                 timestep=cfg.timestep,
                 denoise=cfg.denoise,
                 reference=cfg.reference,
+                epipolar=cfg.epipolar,
                 alpha_input=cfg.alpha,
                 warp_input=cfg.warp,
             )
