@@ -26,6 +26,7 @@ import torch
 from prosplat import ProSplat
 from prosplat.data import find_scenes, load_scene
 from prosplat.data.scene import resize_views
+from prosplat.distill import distill_enhanced
 from prosplat.enhance import EnhanceOptions, departure, enhance, render_view
 from prosplat.evaluate import pick_inputs
 from prosplat.flicker import camera_path, flicker
@@ -53,6 +54,15 @@ def _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args) ->
         d = torch.stack(depths)
         row["raw"] = flicker(torch.stack(raw), d, path)
         row[label] = flicker(torch.stack(frames), d, path)
+        if args.distill_steps:  # the path's enhanced frames fitted into the Gaussians
+            fitted = distill_enhanced(
+                g, inp_images, inp_cams, path, improver, steps=args.distill_steps
+            ).gaussians
+            with torch.no_grad():
+                outs = [render(fitted, cam) for cam in path]
+            row[f"{label} distilled"] = flicker(
+                torch.stack([o.rgb for o in outs]), torch.stack([o.depth for o in outs]), path
+            )  # against their own geometry, which distilling may move
     return row
 
 
@@ -199,6 +209,13 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=0,
         help="also measure flicker along an N-frame path per scene (e.g. 24)",
+    )
+    p.add_argument(
+        "--distill-steps",
+        type=int,
+        default=0,
+        help="with --flicker-frames: also the path's enhanced frames distilled into the "
+        "Gaussians for N steps (prosplat.distill) and rendered raw",
     )
     p.add_argument(
         "--improve",

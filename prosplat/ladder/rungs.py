@@ -348,15 +348,15 @@ def refine_rungs(ctx: LadderContext) -> list[Rung]:
 def distill_rungs(ctx: LadderContext) -> list[Rung]:
     """The generator's Gaussians distilled (:mod:`prosplat.distill`): every target camera
     enhanced, then the Gaussians refined against the inputs and those views for each
-    ``--distill-steps`` count; rows ``distill N`` (the distilled Gaussians' raw render, the
-    consistent answer) and ``distill N enhanced`` (enhanced once more). The enhancement of
-    every view and the refinement are timed as the reconstruction."""
+    ``--distill-steps`` count; rows ``distill N``: the distilled Gaussians' raw render, the
+    consistent answer (enhancing it once more measured worse: BENCHMARKS "Distilled views").
+    The enhancement of every view and the refinement are timed as the reconstruction."""
     steps = [int(n) for n in ctx.options.get("distill_steps") or []]
     if not steps:
         raise SkipRung("no distillation asked for; pass --distill-steps 400")
     improver, dtype = ctx.improver("distill"), _dtype(ctx)
 
-    def make(n: int) -> list[Rung]:
+    def make(n: int) -> Rung:
         def reconstruct(inp: SceneInputs):
             from prosplat.distill import distill_enhanced
 
@@ -365,14 +365,9 @@ def distill_rungs(ctx: LadderContext) -> list[Rung]:
                 g, inp.images, inp.cameras, inp.view_cameras, improver, steps=n, dtype=dtype
             ).gaussians
 
-        label = f"distill {n}"
-        return [
-            Rung(label, reconstruct, splat_view, label, depth=True, warmup=False),
-            Rung(f"{label} enhanced", reconstruct, _enhanced_view(improver, dtype), label,
-                 depth=True, warmup=False),
-        ]  # fmt: skip
+        return Rung(f"distill {n}", reconstruct, splat_view, depth=True, warmup=False)
 
-    return [r for n in steps for r in make(n)]
+    return [make(n) for n in steps]
 
 
 def _true_depth(inp: SceneInputs):
