@@ -93,7 +93,9 @@ def render_views(gaussians, cameras=None, output_dir="", mode="ACTIVE", scene=No
     TARGETS imported with the inputs) from ``gaussians``, enhanced when weights allow, into
     ``output_dir`` (empty: ``//prosplat_renders``, which needs a saved .blend); returns the
     result dict (``views``: per view the files written, the reference input, timings;
-    ``warnings``, e.g. rendering above the input resolution)."""
+    ``warnings``, e.g. rendering above the input resolution). ``options`` override job
+    settings, e.g. ``distill_steps=800``: every view enhanced, the Gaussians fitted to the
+    inputs and those views, then all rendered from them (views that agree; no flicker)."""
     scene = _scene(scene)
     if inputs is None:
         inputs = bpy.data.collections.get(gaussians.get(pointcloud.INPUTS_PROP, ""))

@@ -154,6 +154,13 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         "seconds (0: off). The default 3 s is about 100-200 steps at Input Size 128, which "
         "measured +0.8 dB on new views with no scene family worse; Esc cancels",
     )  # fmt: skip
+    distill_steps: IntProperty(
+        name="Distill Steps", default=runtime.Defaults.distill_steps, min=0, soft_max=2000,
+        description="Render View: first enhance every view to render, fit the Gaussians to the "
+        "inputs and those views for this many steps, then render all of them from the fitted "
+        "Gaussians: views that agree with each other, an animation without flicker (0: off, "
+        "each view enhanced on its own; 800 measured best on new views). Esc cancels",
+    )  # fmt: skip
     max_input_size: IntProperty(
         name="Input Size", default=runtime.Defaults.max_input_size, min=32, soft_max=1024,
         description="Long side (pixels) input images are scaled to: the size refinement fits "
@@ -191,6 +198,7 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         col.prop(self, "enhance")
         col.prop(self, "budget")
         col.prop(self, "refine_seconds")
+        col.prop(self, "distill_steps")
         col.prop(self, "max_input_size")
         col.prop(self, "threads")
         box = layout.box()

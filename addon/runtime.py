@@ -45,6 +45,7 @@ class Defaults:
     enhance: bool = True
     budget: int = 0
     refine_seconds: float = 3.0  # README, "Refinement": why this default
+    distill_steps: int = 0  # README, "Consistent views": off, since it costs before frame one
     max_input_size: int = 128  # the size refinement fits; the generator runs at its own
     python_path: str = ""
     threads: int = 0  # 0: automatic, prosplat.worker.threads.auto_threads

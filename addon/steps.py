@@ -290,6 +290,7 @@ def render_job(gaussians, targets, scene, output_dir: str, context=None, inputs=
         "inputs": frames,
         "output_dir": str(out),
         "enhance": bool(p.enhance if enhance is None else enhance),
+        "distill_steps": int(getattr(p, "distill_steps", 0)),
         "save_raw": bool(save_raw),
         "save_depth": bool(save_depth),
         "background": background(scene),
@@ -386,4 +387,6 @@ def describe_render(result: dict) -> str:
                 f"{result['sequence']['pattern']}")  # fmt: skip
     kept = [f"{v.get('name', '?')}: {v['guard']}" for v in views if v.get("guard")]
     text += f"; reference: {', '.join(refs[:6])}" if refs else ""
+    if views and all(v.get("distilled") for v in views):
+        text += "; rendered from the Gaussians distilled from every enhanced view"
     return text + (f"; raw render kept for {'; '.join(kept[:3])}" if kept else "")

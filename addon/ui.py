@@ -130,6 +130,9 @@ class PROSPLAT_PT_render(_Panel, bpy.types.Panel):
         p = runtime.prefs(context)
         if isinstance(p, bpy.types.AddonPreferences):
             layout.prop(p, "enhance")
+            row = layout.row()
+            row.enabled = p.enhance
+            row.prop(p, "distill_steps")
         col = layout.column()
         col.enabled = s.gaussians is not None or pointcloud.is_gaussians(context.active_object)
         col.operator(PROSPLAT_OT_render_view.bl_idname, icon="RENDER_RESULT")

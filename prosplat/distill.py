@@ -11,8 +11,9 @@ enhance every camera that will be shown, then refine the Gaussians against the i
 photographs and those enhanced views together (:func:`prosplat.refine.refine`), and render
 the cameras from the distilled Gaussians. One set of Gaussians cannot disagree with itself,
 so the frames are as consistent as raw renders, and fitting many enhanced views at once keeps
-what they agree on. On the 64-px test ladder 400 steps give the enhanced views' PSNR or
-better with flicker at the raw renders' level (BENCHMARKS "Distilled views").
+what they agree on. On the test ladder 800 steps give +0.3 dB over the enhanced views at
+64 and 128 px, with no scene type below them, and flicker at the raw renders' level
+(BENCHMARKS "Distilled views"); the price is 0.01-0.02 LPIPS, blur where the views disagree.
 
 What it costs: one enhancement per view plus the refinement steps, all before the first
 frame comes out; so it is a choice for a set of views or a path (``--distill-steps``), not
@@ -35,8 +36,9 @@ from prosplat.gaussians import Gaussians
 from prosplat.refine import RefineOptions, RefineResult, RefineStats, refine
 
 #: Refinement steps a distillation runs when the caller names neither steps nor seconds: the
-#: measured knee on the 64-px test ladder (200 ties the enhanced views, 400 beats them).
-DEFAULT_DISTILL_STEPS = 400
+#: measured on the test ladder (200 tie the enhanced views, 400 beat them by +0.2-0.3 dB but
+#: lose on some scene types, 800 beat them on every type at 64 and 128 px).
+DEFAULT_DISTILL_STEPS = 800
 
 
 @dataclass

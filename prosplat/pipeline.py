@@ -582,7 +582,7 @@ class ProSplat:
         """Gaussians that show every camera of ``view_cameras`` as the improvement model
         enhances it, consistently (:func:`prosplat.distill.distill_enhanced`): each view is
         enhanced, then ``gaussians`` are refined against the inputs (``images [N,3,H,W]``,
-        ``cameras``) and those views together for ``steps`` (default 400) or ``seconds``.
+        ``cameras``) and those views together for ``steps`` (default 800) or ``seconds``.
         Render the result's ``gaussians`` raw at the view cameras: frames of a camera path
         then agree with each other, which views enhanced one by one do not.
 

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import torch
 
+from prosplat.distill import DEFAULT_DISTILL_STEPS
+
 __all__ = [
     "DEFAULT_INPUTS",
     "ReconstructResult",
@@ -136,9 +138,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--distill-steps",
         type=int,
+        nargs="?",
+        const=DEFAULT_DISTILL_STEPS,
         default=0,
         help="fit the Gaussians to the inputs and the enhanced renders together for N steps "
-        "(prosplat.distill; 400 measured best) and render every camera again from them: "
+        f"(prosplat.distill; bare: {DEFAULT_DISTILL_STEPS}, measured best) and render every "
+        "camera again from them: "
         "NAME_distilled.png and gaussians_distilled.ply, views that agree with each other "
         "(a camera path does not flicker); default 0: off",
     )

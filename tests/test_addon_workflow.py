@@ -149,6 +149,22 @@ def test_reconstruct_with_a_refinement_time_budget(tabletop) -> None:
     assert not torch.equal(positions(plain), positions(stepped))
 
 
+def test_render_view_distills_when_asked(tabletop, tmp_path: Path) -> None:
+    """Distill Steps (off by default) makes Render View fit the Gaussians to the enhanced
+    views first and render from them; the status line says so."""
+    from addon import runtime, steps
+
+    scene, inputs, target, folder = tabletop
+    coll = scene.prosplat.inputs
+    g = api.reconstruct(coll, name="to distil", refine_seconds=0.0)
+    assert steps.render_job(g, [], scene, str(tmp_path), None, coll)[1]["distill_steps"] == 0
+    assert runtime.Defaults.distill_steps == 0
+    res = api.render_views(g, [target], tmp_path / "out", inputs=coll, enhance=True,
+                           distill_steps=20)  # fmt: skip
+    assert res["views"][0]["distilled"] and Path(res["views"][0]["image"]).is_file()
+    assert "distilled from every enhanced view" in steps.describe_render(res)
+
+
 @pytest.mark.slow
 def test_enhanced_beats_raw_against_cycles(tabletop, tmp_path: Path) -> None:
     from prosplat.worker.tasks import load_model

@@ -252,6 +252,41 @@ def _refine(params: dict, g: Gaussians, images, cameras, depths, progress: Progr
     return result.gaussians, result.stats.seconds
 
 
+def _distill(params: dict, model, g: Gaussians, images, in_cams, cams, progress: Progress):
+    """``distill_steps``: enhance every target with the inputs' aspect ratio (progress 0.2 to
+    0.5), fit the Gaussians to the inputs and those views (0.5 to 0.8), so that every target
+    then renders raw from one consistent set of Gaussians (:mod:`prosplat.distill`: no
+    flicker along a camera path). Returns (Gaussians, whether they were distilled); with no
+    target of the inputs' aspect ratio it warns and keeps ``g``."""
+    from prosplat.distill import distill
+    from prosplat.enhance import render_view
+
+    h, w = images.shape[-2:]
+    same = [c for c in cams if abs(c.width * h - c.height * w) <= 0.01 * c.height * w]
+    if not same:
+        progress.warn("no target camera has the input images' aspect ratio; not distilled")
+        return g, False
+    views = []
+    for i, cam in enumerate(same):
+        progress(0.2 + 0.3 * i / len(same), f"enhancing views to distil ({i + 1}/{len(same)})")
+        views.append(render_view(g, cam, images, in_cams, model.improver).image.clamp(0, 1))
+    steps = int(params["distill_steps"])
+
+    def report(step: int, total, loss: float) -> None:
+        progress(0.5 + 0.3 * step / total, f"distilling: step {step}/{total}, loss {loss:.4f}")
+
+    # over black, as _render_one renders the views
+    result = distill(
+        g, images.to(g.means.dtype), in_cams, torch.stack(views), same, steps=steps,
+        progress=report, cancel=progress.cancelled,
+    )  # fmt: skip
+    if result.stats.cancelled:
+        from prosplat.worker import Cancelled
+
+        raise Cancelled("cancelled while distilling")
+    return result.gaussians, True
+
+
 def _unique_stem(folder: Path, stem: str, suffixes: list[str]) -> str:
     """``stem``, or ``stem-2``, ``stem-3``... so that no file ``stem+suffix`` exists."""
     candidate, k = stem, 1
@@ -326,6 +361,11 @@ def task_render(params: dict, progress: Progress) -> dict:
         progress.warn("no input views to borrow texture from; saved raw renders instead")
         enhance = False
     g = _gaussians_from(params).to(device, torch.float32)
+    start = 0.2  # where the per-view progress begins
+    distilled = False
+    if params.get("distill_steps") and enhance:
+        g, distilled = _distill(params, model, g, images, in_cams, cams, progress)
+        enhance, start = not distilled, 0.8 if distilled else start
     out_dir.mkdir(parents=True, exist_ok=True)
     sequence = _sequence_of(targets)
     suffixes = _suffixes(params, enhance)
@@ -337,10 +377,11 @@ def task_render(params: dict, progress: Progress) -> dict:
     try:
         for i, (t, cam) in enumerate(zip(targets, cams)):
             what = f"frame {t['frame']}" if prefix else str(t.get("name", i))
-            progress(0.2 + 0.8 * i / len(cams), f"rendering {what} ({i + 1}/{len(cams)})")
+            progress(start + (1 - start) * i / len(cams), f"rendering {what} ({i + 1}/{len(cams)})")
             views.append(_render_and_save(model, g, cam, images, in_cams, enhance, params,
                                           progress, out_dir, t, i, prefix, written, frames))  # fmt: skip
             enhance = views[-1]["enhanced"]
+            views[-1]["distilled"] = distilled
     except BaseException:
         for path in written:  # all or nothing: a cancelled sequence leaves no frames behind
             path.unlink(missing_ok=True)
