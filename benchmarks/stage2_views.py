@@ -3,7 +3,9 @@
 Rows: one target view of each of ``--scenes`` test scenes (the generator at its trained size,
 ``--views`` inputs, the first target). Columns: Blender's image, the raw render, the MORI
 reference warped through the rendered depth over the render (``warp paste``), and the render
-enhanced by each ``--improve LABEL=PATH``. Each enhanced panel is titled with its PSNR.
+enhanced by each ``--improve LABEL=PATH`` (and, with ``--distill-steps N``, the views each
+model's enhanced targets distill into: :mod:`prosplat.distill`). Each panel is titled with
+its PSNR.
 
     python benchmarks/stage2_views.py --data data/test128 --size 128 \\
         --improve v5=prosplat/weights/improve_tiny.safetensors --out docs/stage2_views.png
@@ -22,6 +24,7 @@ import torch  # noqa: E402
 
 from prosplat.data import find_scenes, load_scene  # noqa: E402
 from prosplat.data.scene import resize_views  # noqa: E402
+from prosplat.distill import distill_enhanced  # noqa: E402
 from prosplat.enhance import render_view  # noqa: E402
 from prosplat.evaluate import pick_inputs  # noqa: E402
 from prosplat.improve.io import load_improver  # noqa: E402
@@ -39,6 +42,9 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=6, help="spread evenly over the folder")
     ap.add_argument("--generator", default=None)
     ap.add_argument("--improve", action="append", default=[], metavar="LABEL=PATH")
+    ap.add_argument("--distill-steps", type=int, default=0,
+                    help="also each model's views distilled (prosplat.distill, all the scene's "
+                    "targets together) for N steps: a 'LABEL distilled' column")  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("out/stage2_views.png"))
     args = ap.parse_args()
     model = ProSplat.from_pretrained(args.generator, improve=False)
@@ -49,7 +55,8 @@ def main() -> None:
     folders = find_scenes(args.data)
     step = max(1, len(folders) // args.scenes)
     folders = folders[::step][: args.scenes]
-    cols = ["Blender", "raw", "warp paste", *improvers]
+    distilled = [f"{label} distilled" for label in improvers] if args.distill_steps else []
+    cols = ["Blender", "raw", "warp paste", *improvers, *distilled]
     fig, axes = plt.subplots(len(folders), len(cols), figsize=(2 * len(cols), 2.1 * len(folders)))
     for r, folder in enumerate(folders):
         scene = load_scene(folder)
@@ -65,6 +72,12 @@ def main() -> None:
         panels["warp paste"] = warp_paste_view(g, cam, inp).image
         for label, imp in improvers.items():
             panels[label] = render_view(g, cam, imgs, cams, imp).image
+            if args.distill_steps:  # every target of the scene, as a set of views is rendered
+                _, tcams = resize_views(scene.images[scene.target_indices],
+                                        [scene.cameras[k] for k in scene.target_indices], args.size)  # fmt: skip
+                with torch.enable_grad():
+                    fitted = distill_enhanced(g, imgs, cams, tcams, imp, steps=args.distill_steps)
+                panels[f"{label} distilled"] = render_view(fitted.gaussians, cam).image
         for c, name in enumerate(cols):
             ax = axes[r, c]
             img = panels[name].clamp(0, 1)

@@ -35,9 +35,10 @@ from prosplat.enhance import EnhanceOptions, render_view
 from prosplat.gaussians import Gaussians
 from prosplat.refine import RefineOptions, RefineResult, RefineStats, refine
 
-#: Refinement steps a distillation runs when the caller names neither steps nor seconds: the
-#: measured on the test ladder (200 tie the enhanced views, 400 beat them by +0.2-0.3 dB but
-#: lose on some scene types, 800 beat them on every type at 64 and 128 px).
+#: Refinement steps a distillation runs when the caller names neither steps nor seconds,
+#: measured on the test ladder: 200 tie the enhanced views, 400 beat them by +0.2-0.3 dB but
+#: lose on some scene types, 800 beat them on every type at 64 and 128 px. Each step fits one
+#: view, so a long path (hundreds of frames) visits each view only a few times.
 DEFAULT_DISTILL_STEPS = 800
 
 

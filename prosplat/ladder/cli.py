@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-seconds", type=float, nargs="*", default=[],
                         help="refinement time budgets in seconds, e.g. 10: rows 'refine S s'")  # fmt: skip
     parser.add_argument("--distill-steps", type=int, nargs="*", default=[],
-                        help="distillation step counts, e.g. 400: rows 'distill N' (+ enhanced): "
+                        help="distillation step counts, e.g. 400 800: rows 'distill N': "
                         "every target enhanced, then the Gaussians refined against the inputs and "
                         "them (prosplat.distill)")  # fmt: skip
     parser.add_argument("--generator", default=None, help="generator checkpoint (default shipped)")

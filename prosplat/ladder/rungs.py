@@ -353,7 +353,7 @@ def distill_rungs(ctx: LadderContext) -> list[Rung]:
     The enhancement of every view and the refinement are timed as the reconstruction."""
     steps = [int(n) for n in ctx.options.get("distill_steps") or []]
     if not steps:
-        raise SkipRung("no distillation asked for; pass --distill-steps 400")
+        raise SkipRung("no distillation asked for; pass --distill-steps 800")
     improver, dtype = ctx.improver("distill"), _dtype(ctx)
 
     def make(n: int) -> Rung:

@@ -48,7 +48,7 @@ WEIGHTS_NAME = "checkpoint.safetensors"
 STATE_NAME = "state.pt"
 
 
-# ---- devices and torch.distributed ----------------------------------------------------------
+# ---- run settings ----------------------------------------------------------------------------
 def check_intervals(cfg, *names: str) -> None:
     """Refuse step intervals below 1 (``--save-every 0`` would divide by zero mid-run): a
     training config's ``__post_init__`` calls it so the run fails before its first step."""
@@ -60,6 +60,7 @@ def check_intervals(cfg, *names: str) -> None:
             )
 
 
+# ---- devices and torch.distributed ----------------------------------------------------------
 def pick_device(name: str = "auto", local_rank: int | None = None) -> torch.device:
     """``auto`` → this process's GPU (``LOCAL_RANK`` under torchrun) if CUDA works, else CPU.
 
