@@ -19,10 +19,9 @@ import torch
 
 from prosplat import ProSplat
 from prosplat.data import find_scenes, load_scene
-from prosplat.data.scene import resize_views
 from prosplat.distill import distill_enhanced
 from prosplat.enhance import render_view
-from prosplat.evaluate import pick_inputs
+from prosplat.evaluate import scene_at
 from prosplat.flicker import camera_path, flicker
 from prosplat.metrics import LPIPS, psnr
 
@@ -47,11 +46,9 @@ def main() -> None:
 
     for folder in find_scenes(args.data)[: args.scenes]:
         scene = load_scene(folder, load_depth=False)
-        idx = pick_inputs(scene, 4)
-        near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
-        images, cams = resize_views(scene.images, scene.cameras, args.size)
-        inp, icams = images[idx], [cams[i] for i in idx]
-        g = model.reconstruct_pruned(inp, icams, near, far).gaussians
+        at = scene_at(scene, 4, args.size)
+        images, cams, inp, icams = at.images, at.cameras, at.input_images, at.input_cameras
+        g = model.reconstruct_pruned(inp, icams, at.near, at.far).gaussians
         targets = list(scene.target_indices)
         tcams = [cams[t] for t in targets]
         for t, cam in zip(targets, tcams):

@@ -25,10 +25,9 @@ import torch
 
 from prosplat import ProSplat
 from prosplat.data import find_scenes, load_scene
-from prosplat.data.scene import resize_views
 from prosplat.distill import distill_enhanced
 from prosplat.enhance import EnhanceOptions, departure, enhance, render_view
-from prosplat.evaluate import pick_inputs
+from prosplat.evaluate import scene_at
 from prosplat.flicker import camera_path, flicker
 from prosplat.image_io import write_image
 from prosplat.improve.mori import select_reference
@@ -77,14 +76,13 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
     rows = []
     for n, folder in enumerate(folders):
         scene = load_scene(folder, load_depth=False)
-        idx = pick_inputs(scene, args.views)
-        near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
         for size in args.sizes:
-            images, cams = resize_views(scene.images, scene.cameras, size)
-            inp_images, inp_cams = images[idx], [cams[i] for i in idx]
+            at = scene_at(scene, args.views, size)
+            images, cams, idx = at.images, at.cameras, at.inputs
+            inp_images, inp_cams = at.input_images, at.input_cameras
             # as the pipeline runs it: at most the weights' trained size (--generator-size)
             g = model.reconstruct_pruned(
-                inp_images, inp_cams, near, far, generator_height=args.generator_size
+                inp_images, inp_cams, at.near, at.far, generator_height=args.generator_size
             ).gaussians
             if args.flicker_frames and size == args.sizes[0]:
                 flicker_rows.append(

@@ -26,9 +26,8 @@ import torch
 
 from prosplat import ProSplat
 from prosplat.data import find_scenes, load_scene
-from prosplat.data.scene import resize_views
 from prosplat.enhance import enhance
-from prosplat.evaluate import pick_inputs
+from prosplat.evaluate import scene_at
 from prosplat.flicker import camera_path, flicker
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import warp_reference
@@ -110,11 +109,9 @@ def main() -> None:
     ratios = {v: [] for v in VARIANTS}
     for folder in find_scenes(args.data)[: args.scenes]:
         scene = load_scene(folder, load_depth=False)
-        idx = pick_inputs(scene, 4)
-        near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
-        images, cams = resize_views(scene.images, scene.cameras, args.size)
-        inp, icams = images[idx], [cams[i] for i in idx]
-        g = model.reconstruct_pruned(inp, icams, near, far).gaussians
+        at = scene_at(scene, 4, args.size)
+        images, cams, inp, icams = at.images, at.cameras, at.input_images, at.input_cameras
+        g = model.reconstruct_pruned(inp, icams, at.near, at.far).gaussians
         with torch.no_grad():
             ref_depths = [render(g, c).depth for c in icams]
         state = (model.improver, g, inp, icams, ref_depths)

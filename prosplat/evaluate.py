@@ -114,6 +114,38 @@ def pick_inputs(scene: SceneData, n: int) -> list[int]:
     return sorted(ins[k] for k in farthest_point_sampling(centers, n))
 
 
+@dataclass
+class ResizedScene:
+    """A scene at an evaluation size with its inputs picked (:func:`scene_at`): every view's
+    ``images`` [A,3,H,W] and ``cameras``, the input indices ``inputs`` and the inputs' depth
+    range."""
+
+    images: Tensor
+    cameras: list[Camera]
+    inputs: list[int]
+    near: float
+    far: float
+
+    @property
+    def input_images(self) -> Tensor:
+        return self.images[self.inputs]  # [V,3,H,W]
+
+    @property
+    def input_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.inputs]
+
+
+def scene_at(scene: SceneData, views: int, size: int) -> ResizedScene:
+    """``scene`` resized to ``size`` px high (antialiased) with ``views`` inputs picked as
+    every evaluation picks them (:func:`pick_inputs`)."""
+    from prosplat.data.scene import resize_views
+
+    idx = pick_inputs(scene, views)
+    images, cams = resize_views(scene.images, scene.cameras, size)
+    near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
+    return ResizedScene(images, cams, idx, near, far)
+
+
 def abs_rel(pred: Tensor, gt: Tensor, alpha: Tensor) -> float:
     """Mean |pred − gt| / gt over pixels with Blender depth and a drawn surface (alpha > 0.5)."""
     valid = (gt > 0) & (alpha > 0.5)

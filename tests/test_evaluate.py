@@ -19,6 +19,7 @@ from prosplat.evaluate import (
     markdown_table,
     pick_inputs,
     plane_sweep_method,
+    scene_at,
     summarise,
 )
 
@@ -64,6 +65,17 @@ def test_pick_inputs_spreads_views_and_refuses_too_many(scene):
     assert len(two) == 2 and set(two) <= {0, 2, 4}
     with pytest.raises(ValueError, match="input views"):
         pick_inputs(scene, 4)
+
+
+def test_scene_at_resizes_every_view_and_picks_the_inputs(scene):
+    at = scene_at(scene, 3, 64)
+    assert at.images.shape == (5, 3, 64, 64) and at.inputs == pick_inputs(scene, 3)
+    assert [(c.width, c.height) for c in at.cameras] == [(64, 64)] * 5
+    assert torch.equal(at.input_images, at.images[[0, 2, 4]])
+    assert at.input_cameras[1] is at.cameras[2]
+    assert at.near == float(scene.near[[0, 2, 4]].min()) < at.far
+    # the resize is the antialiased one every evaluation uses: its mean colour is kept
+    assert torch.allclose(at.images.mean((2, 3)), scene.images.mean((2, 3)), atol=0.01)
 
 
 def test_generator_and_plane_sweep_give_finite_scores(scene):
