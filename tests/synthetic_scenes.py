@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from prosplat import render
+import torch
+
+from prosplat import Gaussians, render
 from prosplat.convert.nerfstudio import Frame, write_transforms
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 from prosplat.image_io import write_depth, write_image
@@ -44,3 +46,17 @@ def worker_scene(folder, size=32):
     frames = [{"name": f"{i:03d}", "image": str(folder / "images" / f"{i:03d}.png"),
                "camera": camera_to_blender_dict(cams[i])} for i in (0, 2)]  # fmt: skip
     return frames, camera_to_blender_dict(cams[1])
+
+
+def orbit_scene_with_wrong_colours(n_views, size, inputs, noise, arc_deg=50.0):
+    """``n_views`` orbit views of the analytic demo scene, their exact images and depths, and
+    a start for fitting: the ``inputs``' exact pixel-aligned Gaussians with their colours
+    disturbed by ``noise`` (right geometry, wrong colours: what only a fit can repair)."""
+    cams = orbit_cameras(n_views, size, size, arc_deg=arc_deg)
+    truth = pixel_aligned_gaussians(cams)
+    images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)
+    depths = torch.stack([raycast(c)[0] for c in cams]).float()
+    start = pixel_aligned_gaussians([cams[i] for i in inputs], seed=1)
+    sh = start.sh + noise * torch.randn(start.sh.shape, generator=torch.Generator().manual_seed(0))
+    start = Gaussians(start.means, start.quats, start.scales, start.opacities, sh)
+    return dict(cams=cams, images=images, depths=depths, start=start)

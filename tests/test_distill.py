@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
+from synthetic_scenes import orbit_scene_with_wrong_colours
 
-from prosplat import Gaussians, render
-from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
+from prosplat import render
+from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians
 from prosplat.distill import distill, distill_enhanced, enhance_views
 from prosplat.flicker import flicker
 from prosplat.improve.config import ImproveConfig
@@ -24,14 +25,7 @@ def scene():
     """7 orbit views of the analytic demo scene with exact images and depths; the start is
     the inputs' pixel-aligned Gaussians with their colours disturbed (right geometry, wrong
     colours), so only what a fit adds can make the in-between views right."""
-    cams = orbit_cameras(7, SIZE, SIZE, arc_deg=60.0)
-    truth = pixel_aligned_gaussians(cams)
-    images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)
-    depths = torch.stack([raycast(c)[0] for c in cams]).float()
-    start = pixel_aligned_gaussians([cams[i] for i in INPUTS], seed=1)
-    noise = 0.2 * torch.randn(start.sh.shape, generator=torch.Generator().manual_seed(0))
-    start = Gaussians(start.means, start.quats, start.scales, start.opacities, start.sh + noise)
-    return dict(cams=cams, images=images, depths=depths, start=start)
+    return orbit_scene_with_wrong_colours(7, SIZE, INPUTS, 0.2, arc_deg=60.0)
 
 
 def _views_psnr(g, scene) -> float:

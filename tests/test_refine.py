@@ -8,9 +8,9 @@ from dataclasses import replace
 
 import pytest
 import torch
+from synthetic_scenes import orbit_scene_with_wrong_colours
 
 from prosplat import Gaussians, render
-from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 from prosplat.metrics import psnr, ssim
 from prosplat.refine import (
     LearningRates,
@@ -29,14 +29,7 @@ def scene():
     """5 orbit views of the analytic demo scene, exact images and depths; 2 are inputs, the
     middle one is held out. The start: the inputs' exact pixel-aligned Gaussians with their
     colours disturbed (what a generator with the right geometry but wrong colours gives)."""
-    cams = orbit_cameras(5, SIZE, SIZE)
-    truth = pixel_aligned_gaussians(cams)
-    images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)
-    depths = torch.stack([raycast(c)[0] for c in cams]).float()
-    start = pixel_aligned_gaussians([cams[i] for i in INPUTS], seed=1)
-    noise = 0.15 * torch.randn(start.sh.shape, generator=torch.Generator().manual_seed(0))
-    start = Gaussians(start.means, start.quats, start.scales, start.opacities, start.sh + noise)
-    return dict(cams=cams, images=images, depths=depths, start=start)
+    return orbit_scene_with_wrong_colours(5, SIZE, INPUTS, 0.15)
 
 
 def inputs(scene):
