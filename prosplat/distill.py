@@ -54,12 +54,19 @@ class DistillResult:
     enhance_s: float
 
 
+def fits_inputs(camera: Camera, height: int, width: int) -> bool:
+    """Whether a view of ``camera`` can be distilled with inputs of ``height`` x ``width``:
+    the same aspect ratio within 1 % (refinement fits views of one size, so a view of
+    another resolution is resized to the inputs')."""
+    return abs(camera.width * height - camera.height * width) <= 0.01 * camera.height * width
+
+
 def _at_input_size(image: Tensor, camera: Camera, height: int, width: int, k: int):
     """A view [3,h,w] and its camera at the inputs' size (antialiased), when only the
     resolution differs; refinement fits views of one size."""
     if (camera.height, camera.width) == (height, width):
         return image, camera
-    if abs(camera.width / camera.height - width / height) > 0.01 * width / height:
+    if not fits_inputs(camera, height, width):
         raise ValueError(
             f"distill: view {k} is {camera.width}x{camera.height} but the inputs are "
             f"{width}x{height}; views must have the inputs' aspect ratio (render other "

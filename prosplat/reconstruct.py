@@ -419,14 +419,14 @@ def _distill_renders(g, images, cameras, todo, enhanced, background, args) -> st
     with the inputs' aspect ratio (refinement fits views of one size), write
     ``gaussians_distilled.ply`` and every camera's render from it; returns a note for the
     report."""
-    from prosplat.distill import distill
+    from prosplat.distill import distill, fits_inputs
     from prosplat.image_io import write_image
     from prosplat.ply import write_ply
     from prosplat.refine import RefineOptions
     from prosplat.render import render
 
     h, w = images.shape[-2:]
-    same = [(c, im) for c, im in enhanced if abs(c.width * h - c.height * w) <= 0.01 * c.height * w]
+    same = [(c, im) for c, im in enhanced if fits_inputs(c, h, w)]
     if not same:
         raise ValueError("--distill-steps: no rendered camera has the inputs' aspect ratio")
     views = torch.stack([im for _, im in same])

@@ -8,7 +8,7 @@ from synthetic_scenes import orbit_scene_with_wrong_colours
 
 from prosplat import render
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians
-from prosplat.distill import distill, distill_enhanced, enhance_views
+from prosplat.distill import distill, distill_enhanced, enhance_views, fits_inputs
 from prosplat.flicker import flicker
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.model import ImproveModel
@@ -69,6 +69,14 @@ def test_distilled_frames_are_as_consistent_as_raw_renders(scene):
     noisy_f, ours_f, truth_f = (flicker(x, depths, view_cams) for x in (noisy, frames, truth))
     assert ours_f < 0.5 * noisy_f, (ours_f, noisy_f)
     assert ours_f < 1.2 * truth_f, (ours_f, truth_f)  # the stage-2 issue's bar, met
+
+
+def test_fits_inputs_is_the_aspect_ratio_within_one_percent(scene):
+    cam = scene["cams"][0]  # 32 x 32
+    assert fits_inputs(cam, SIZE, SIZE) and fits_inputs(cam.resized(96, 96), SIZE, SIZE)
+    assert fits_inputs(cam.resized(101, 100), SIZE, SIZE)  # 1 % off
+    assert not fits_inputs(cam.resized(103, 100), SIZE, SIZE)
+    assert not fits_inputs(cam.resized(64, 32), SIZE, SIZE)
 
 
 def test_views_of_another_size_are_fitted_at_the_inputs_size(scene):

@@ -219,6 +219,10 @@ def test_render_distills_the_views_into_one_set_of_gaussians(scene, tmp_path: Pa
     for p, d in zip(plain["views"], dis["views"]):
         enh, raw, ours = (read_image(x) for x in (p["image"], p["raw"], d["image"]))
         assert (ours - enh).abs().mean() < 0.8 * (raw - enh).abs().mean()  # measured 0.66
+    wide = {"name": "wide", "camera": camera_to_blender_dict(cams[3].resized(128, 64))}
+    mixed = run_task("render", {**rp, "targets": [*targets, wide], "distill_steps": 2,
+                                "output_dir": str(tmp_path / "mixed")})  # fmt: skip
+    assert any("1 target camera(s) of another aspect ratio" in w for w in mixed["warnings"])
     progress = Progress(lambda f, m: progress.cancel.set() if m.startswith("distilling") else None)
     with pytest.raises(Cancelled):
         run_task("render", {**rp, "output_dir": str(tmp_path / "esc"), "distill_steps": 60},

@@ -258,14 +258,19 @@ def _distill(params: dict, model, g: Gaussians, images, in_cams, cams, progress:
     then renders raw from one consistent set of Gaussians (:mod:`prosplat.distill`: no
     flicker along a camera path). Returns (Gaussians, whether they were distilled); with no
     target of the inputs' aspect ratio it warns and keeps ``g``."""
-    from prosplat.distill import distill
+    from prosplat.distill import distill, fits_inputs
     from prosplat.enhance import render_view
 
     h, w = images.shape[-2:]
-    same = [c for c in cams if abs(c.width * h - c.height * w) <= 0.01 * c.height * w]
+    same = [c for c in cams if fits_inputs(c, h, w)]
     if not same:
         progress.warn("no target camera has the input images' aspect ratio; not distilled")
         return g, False
+    if len(same) < len(cams):
+        progress.warn(
+            f"{len(cams) - len(same)} target camera(s) of another aspect ratio than the input "
+            "images are rendered from the distilled Gaussians without being fitted"
+        )
     views = []
     for i, cam in enumerate(same):
         progress(0.2 + 0.3 * i / len(same), f"enhancing views to distil ({i + 1}/{len(same)})")
