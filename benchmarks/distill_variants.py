@@ -19,7 +19,7 @@ import torch
 
 from prosplat import ProSplat
 from prosplat.data import find_scenes, load_scene
-from prosplat.distill import distill_enhanced
+from prosplat.distill import distill, enhance_views
 from prosplat.enhance import render_view
 from prosplat.evaluate import scene_at
 from prosplat.flicker import camera_path, flicker
@@ -51,10 +51,11 @@ def main() -> None:
         g = model.reconstruct_pruned(inp, icams, at.near, at.far).gaussians
         targets = list(scene.target_indices)
         tcams = [cams[t] for t in targets]
-        for t, cam in zip(targets, tcams):
-            score("enhanced", render_view(g, cam, inp, icams, imp).image, images[t])
+        enhanced = enhance_views(g, inp, icams, tcams, imp)  # [T,3,H,W], scored and fitted
+        for t, image in zip(targets, enhanced):
+            score("enhanced", image, images[t])
         for n in args.steps:
-            fitted = distill_enhanced(g, inp, icams, tcams, imp, steps=n).gaussians
+            fitted = distill(g, inp, icams, enhanced, tcams, steps=n).gaussians
             for t, cam in zip(targets, tcams):
                 v = render_view(fitted, cam, inp, icams, imp)
                 score(f"distill {n}", v.raw, images[t])
@@ -67,7 +68,8 @@ def main() -> None:
             flicker(torch.stack([v.image for v in plain]), depths, path) / raw
         )
         n = args.steps[0]
-        fitted = distill_enhanced(g, inp, icams, path, imp, steps=n).gaussians
+        frames = torch.stack([v.image for v in plain]).clamp(0, 1)
+        fitted = distill(g, inp, icams, frames, path, steps=n).gaussians
         again = [render_view(fitted, c, inp, icams, imp) for c in path]
         own = torch.stack([v.depth for v in again])
         for key, frames in ((f"distill {n}", [v.raw for v in again]),

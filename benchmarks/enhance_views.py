@@ -25,7 +25,7 @@ import torch
 
 from prosplat import ProSplat
 from prosplat.data import find_scenes, load_scene
-from prosplat.distill import distill_enhanced
+from prosplat.distill import distill
 from prosplat.enhance import EnhanceOptions, departure, enhance, render_view
 from prosplat.evaluate import scene_at
 from prosplat.flicker import camera_path, flicker
@@ -54,8 +54,9 @@ def _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args) ->
         row["raw"] = flicker(torch.stack(raw), d, path)
         row[label] = flicker(torch.stack(frames), d, path)
         if args.distill_steps:  # the path's enhanced frames fitted into the Gaussians
-            fitted = distill_enhanced(
-                g, inp_images, inp_cams, path, improver, steps=args.distill_steps
+            views = torch.stack(frames).clamp(0, 1)  # the frames just enhanced, fitted as they are
+            fitted = distill(
+                g, inp_images, inp_cams, views, path, steps=args.distill_steps
             ).gaussians
             with torch.no_grad():
                 outs = [render(fitted, cam) for cam in path]

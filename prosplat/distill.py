@@ -92,15 +92,19 @@ def enhance_views(
     *,
     enhance_options: EnhanceOptions | None = None,
     dtype: torch.dtype = torch.float32,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Tensor:
     """Every view of ``view_cameras`` rendered and enhanced on its own (what distilling fits),
-    at the inputs' size: [T,3,H,W] (a guarded view is its raw render)."""
+    at the inputs' size: [T,3,H,W] (a guarded view is its raw render). ``progress(k, T)`` is
+    called before view k."""
     if improver is None:
         raise ValueError("distill: needs an improvement model (stage 2) to enhance the views")
     _check_views(view_cameras)
     height, width = images.shape[-2:]
     out = []
     for k, cam in enumerate(view_cameras):
+        if progress is not None:
+            progress(k, len(view_cameras))
         view = render_view(
             gaussians, cam, images, cameras, improver, dtype=dtype, options=enhance_options
         )

@@ -258,8 +258,7 @@ def _distill(params: dict, model, g: Gaussians, images, in_cams, cams, progress:
     then renders raw from one consistent set of Gaussians (:mod:`prosplat.distill`: no
     flicker along a camera path). Returns (Gaussians, whether they were distilled); with no
     target of the inputs' aspect ratio it warns and keeps ``g``."""
-    from prosplat.distill import distill, fits_inputs
-    from prosplat.enhance import render_view
+    from prosplat.distill import distill, enhance_views, fits_inputs
 
     h, w = images.shape[-2:]
     same = [c for c in cams if fits_inputs(c, h, w)]
@@ -271,10 +270,11 @@ def _distill(params: dict, model, g: Gaussians, images, in_cams, cams, progress:
             f"{len(cams) - len(same)} target camera(s) of another aspect ratio than the input "
             "images are rendered from the distilled Gaussians without being fitted"
         )
-    views = []
-    for i, cam in enumerate(same):
-        progress(0.2 + 0.3 * i / len(same), f"enhancing views to distil ({i + 1}/{len(same)})")
-        views.append(render_view(g, cam, images, in_cams, model.improver).image.clamp(0, 1))
+    images = images.to(g.means.dtype)
+    views = enhance_views(
+        g, images, in_cams, same, model.improver,
+        progress=lambda i, n: progress(0.2 + 0.3 * i / n, f"enhancing views to distil ({i + 1}/{n})"),
+    )  # fmt: skip
     steps = int(params["distill_steps"])
 
     def report(step: int, total, loss: float) -> None:
@@ -282,7 +282,7 @@ def _distill(params: dict, model, g: Gaussians, images, in_cams, cams, progress:
 
     # over black, as _render_one renders the views
     result = distill(
-        g, images.to(g.means.dtype), in_cams, torch.stack(views), same, steps=steps,
+        g, images, in_cams, views, same, steps=steps,
         progress=report, cancel=progress.cancelled,
     )  # fmt: skip
     if result.stats.cancelled:
