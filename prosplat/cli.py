@@ -444,7 +444,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tg.add_argument("--out", required=True, help="run folder (checkpoints, log.jsonl)")
     tg.add_argument("--val", default=None, help="validation dataset folder (optional)")
-    tg.add_argument("--config", default=defaults.config, choices=sorted(PRESETS))
+    tg.add_argument(
+        "--config",
+        default=defaults.config,
+        choices=sorted(PRESETS),
+        help="architecture preset of a new model (default %(default)s); prosplat --init "
+        "weights bring their own",
+    )
     for name in (
         "steps",
         "batch",

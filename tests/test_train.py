@@ -405,6 +405,14 @@ def test_grow_fine_matching_starts_from_the_init_and_resumes(dataset, tmp_path):
     assert [json.loads(line)["step"] for line in log] == [1, 2]
     with pytest.raises(ValueError, match="grow_fine_matching"):
         TrainConfig(**base, out="x", grow_fine_matching=4)
+    # fine-tuning the grown weights again (no --grow): the init's own architecture is built,
+    # whatever --config says, and step 0 keeps its weights
+    again = dict(**base, init=str(tmp_path / "g" / WEIGHTS_NAME), lr=1e-12, save_every=1)
+    train(TrainConfig(**again, out=str(tmp_path / "again"), steps=1), progress=False)
+    tuned = ProSplat.from_pretrained(tmp_path / "again" / WEIGHTS_NAME).generator
+    assert tuned.config.fine_matching_channels == 4
+    for name, value in grown.generator.state_dict().items():
+        torch.testing.assert_close(tuned.state_dict()[name], value, atol=1e-9, rtol=0, msg=name)
 
 
 def test_render_loss_fused_projection_matches_the_torch_projection(dataset):

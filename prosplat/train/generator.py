@@ -547,6 +547,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         init_state = None
         if cfg.grow_fine_matching:
             model_config, init_state = _grown_init(cfg)
+        elif cfg.init and model_config is None:
+            model_config, init_state = _init_weights(cfg)
         pipe = ProSplat(model_config or preset(cfg.config))
         model = pipe.generator.to(device).train()
         params = list(model.parameters())
@@ -678,6 +680,19 @@ def _save(pipe, opt, step: int, out: Path) -> None:
         {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()},
         metadata=_weights_metadata(pipe, pipe.trained_size),
     )
+
+
+def _init_weights(cfg: TrainConfig):
+    """(config, weights) of the prosplat weights ``cfg.init``: the architecture comes from the
+    file's metadata, not from ``--config``, so fine-tuning a grown model (v3 has a fine cost
+    volume that ``tiny`` lacks) builds the network the weights were saved from. The config is
+    None for a file without one (then ``--config`` must match it)."""
+    from prosplat.checkpoints import read_checkpoint
+    from prosplat.generator.config import GeneratorConfig
+
+    state, meta = read_checkpoint(Path(cfg.init), "generator")
+    config = GeneratorConfig.from_json(meta["config"]) if "config" in meta else None
+    return config, state
 
 
 def _grown_init(cfg: TrainConfig):
