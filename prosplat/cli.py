@@ -62,14 +62,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_scenes_render(args: argparse.Namespace) -> int:
-    """Render scenes ``seed .. seed+count-1`` in parallel worker processes (each imports bpy)."""
+    """Render scenes ``seed .. seed+count-1`` with ``--workers`` long-lived Blender processes
+    (``scenes.render --jobs-from-stdin``), each fed the next missing scene as it finishes one."""
     import os
     import subprocess
-    from concurrent.futures import ThreadPoolExecutor, as_completed
+    import threading
+    from queue import Empty, Queue
 
     from tqdm import tqdm
 
     from prosplat.data.splits import family_for_seed, split_of
+    from scenes.jobs import read_answer
 
     if args.count < 1 or args.workers < 1 or args.size < 8 or args.samples < 1:
         print(
@@ -91,40 +94,68 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
     if not jobs:
         return 0
     threads = max(1, (os.cpu_count() or 1) // args.workers)
+    cmd = [
+        sys.executable,
+        "-m",
+        "scenes.render",
+        "--jobs-from-stdin",
+        "--out",
+        str(args.out),
+        "--size",
+        str(args.size),
+        "--inputs",
+        str(args.inputs),
+        "--targets",
+        str(args.targets),
+        "--samples",
+        str(args.samples),
+        "--threads",
+        str(threads),
+    ] + (["--denoise"] if args.denoise else [])
+    queue: Queue = Queue()
+    for job in jobs:
+        queue.put(job)
+    failures: list[tuple[str, int, list[str]]] = []
+    bar = tqdm(total=len(jobs), desc="rendering scenes", unit="scene")
+    lock = threading.Lock()
 
-    def run(name: str, seed: int) -> tuple[str, int, subprocess.CompletedProcess]:
-        cmd = [
-            sys.executable,
-            "-m",
-            "scenes.render",
-            "--name",
-            name,
-            "--seed",
-            str(seed),
-            "--out",
-            str(args.out),
-            "--size",
-            str(args.size),
-            "--inputs",
-            str(args.inputs),
-            "--targets",
-            str(args.targets),
-            "--samples",
-            str(args.samples),
-            "--threads",
-            str(threads),
-        ] + (["--denoise"] if args.denoise else [])
-        return name, seed, subprocess.run(cmd, capture_output=True, text=True)
+    def worker() -> None:
+        """One long-lived Blender process fed scene after scene (start-up paid once); a
+        process that dies fails its current scene and is replaced for the next."""
+        proc = None
+        while True:
+            try:
+                name, seed = queue.get_nowait()
+            except Empty:
+                break
+            if proc is None:
+                proc = subprocess.Popen(
+                    cmd,
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.STDOUT,
+                    text=True,
+                )
+            proc.stdin.write(f"{name} {seed}\n")
+            proc.stdin.flush()
+            answer, tail = read_answer(proc.stdout)
+            if answer is None:  # the process died mid-scene: a fresh one takes the next
+                answer = {"error": tail + [f"(the Blender worker exited with {proc.wait()})"]}
+                proc = None
+            with lock:
+                if "folder" not in answer:
+                    failures.append((name, seed, answer.get("error", [])))
+                bar.update()
+        if proc is not None:
+            proc.stdin.close()
+            proc.wait()
 
-    failures = []
-    with ThreadPoolExecutor(args.workers) as pool:
-        futures = [pool.submit(run, name, seed) for name, seed in jobs]
-        for fut in tqdm(
-            as_completed(futures), total=len(futures), desc="rendering scenes", unit="scene"
-        ):
-            name, seed, res = fut.result()
-            if res.returncode != 0:
-                failures.append((name, seed, res.stderr.strip().splitlines()[-15:]))
+    threads_ = [threading.Thread(target=worker) for _ in range(min(args.workers, len(jobs)))]
+    for t in threads_:
+        t.start()
+    for t in threads_:
+        t.join()
+    bar.close()
     for name, seed, tail in failures:
         print(f"scene {name} seed {seed} failed:\n  " + "\n  ".join(tail), file=sys.stderr)
     print(
@@ -434,7 +465,7 @@ def build_parser() -> argparse.ArgumentParser:
         "train generator ...",
     )
     from prosplat.generator.config import PRESETS
-    from prosplat.train.generator import TrainConfig, parse_inputs
+    from prosplat.train.generator import DEPTH_LOSSES, TrainConfig, parse_inputs
 
     defaults = TrainConfig(data="", out="")
     tg.add_argument(
@@ -500,6 +531,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=defaults.sizes,
         help="image sizes drawn per step, e.g. 64,128 (multiples of 32, at most the data's; "
         "default: the data's size)",
+    )
+    tg.add_argument(
+        "--depth-loss",
+        choices=DEPTH_LOSSES,
+        default=defaults.depth_loss,
+        help="how --depth-weight and --input-depth-weight compare depths: L1 of inverse depth "
+        "(scene units) or of log depth (relative, the same at any scene scale; default "
+        "%(default)s)",
     )
     tg.add_argument(
         "--stop-at",

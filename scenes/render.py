@@ -1,10 +1,14 @@
 """Render one seeded scene with Cycles into a scene folder (bpy).
 
-Run as ``python -m scenes.render --name room --seed 3 --out DIR ...`` (one scene per
-process: bpy state is global, and a crash must not take other scenes with it);
-``prosplat scenes render`` runs many of these in parallel. The folder is written under a
-hidden temporary name and renamed into place only when complete, so a scene folder that
-exists is a finished one and an interrupted run leaves nothing half-made behind.
+Run as ``python -m scenes.render --name room --seed 3 --out DIR ...`` for one scene, or with
+``--jobs-from-stdin`` as a long-lived worker: it reads ``NAME SEED`` lines and answers each
+with one ``PROSPLAT_DONE {json}`` or ``PROSPLAT_FAILED {json}`` line, so that the start-up of
+Python, bpy and Cycles is paid once per worker, not once per scene (``prosplat scenes render``
+runs one such worker per ``--workers`` and restarts one that crashes). Every scene starts from
+Blender's factory settings (:func:`scenes.builders.build_scene`), so a scene renders the same
+after another one as in a fresh process. The folder is written under a hidden temporary name
+and renamed into place only when complete, so a scene folder that exists is a finished one and
+an interrupted run leaves nothing half-made behind.
 """
 
 from __future__ import annotations
@@ -267,10 +271,14 @@ def save_blend(path: Path, template, frames: list[Frame]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Render one seeded scene with Cycles (bpy).")
+    ap.add_argument("--name", help="family (room, tabletop, open) or hard scene name")
+    ap.add_argument("--seed", type=int)
     ap.add_argument(
-        "--name", required=True, help="family (room, tabletop, open) or hard scene name"
+        "--jobs-from-stdin",
+        action="store_true",
+        help="render every 'NAME SEED' line of stdin, answering each with a PROSPLAT_DONE or "
+        "PROSPLAT_FAILED line (instead of --name/--seed)",
     )
-    ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--inputs", type=int, default=4)
@@ -281,21 +289,58 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--progress", action="store_true", help="print PROSPLAT_PROGRESS lines")
     ap.add_argument("--blend", type=Path, default=None, help="also save the scene as a .blend")
     args = ap.parse_args(argv)
-    folder = render_scene(
-        args.name,
-        args.seed,
-        args.out,
-        args.size,
-        args.inputs,
-        args.targets,
-        args.samples,
-        args.denoise,
-        args.threads,
-        progress=args.progress,
-        blend=args.blend,
-    )
-    print(json.dumps({"folder": str(folder)}))
+
+    def one(name: str, seed: int) -> Path:
+        return render_scene(
+            name,
+            seed,
+            args.out,
+            args.size,
+            args.inputs,
+            args.targets,
+            args.samples,
+            args.denoise,
+            args.threads,
+            progress=args.progress,
+            blend=args.blend,
+        )
+
+    if args.jobs_from_stdin:
+        if args.name is not None or args.seed is not None or args.blend is not None:
+            ap.error("--jobs-from-stdin takes the scenes from stdin: drop --name/--seed/--blend")
+        serve_jobs(sys.stdin, one)
+        return 0
+    if args.name is None or args.seed is None:
+        ap.error("--name and --seed are required (or --jobs-from-stdin)")
+    print(json.dumps({"folder": str(one(args.name, args.seed))}))
     return 0
+
+
+def serve_jobs(lines, render_one) -> None:
+    """Render each ``NAME SEED`` line with ``render_one(name, seed)`` and print one answer
+    line per job (:mod:`scenes.jobs`; blank lines are skipped). A scene that raises is
+    reported and the worker goes on with the next one."""
+    import traceback
+
+    from scenes.jobs import answer_line
+
+    for line in lines:
+        if not line.strip():
+            continue
+        try:
+            name, seed_text = line.split()
+            seed = int(seed_text)
+        except ValueError:
+            answer = {"line": line.strip(), "error": ["not a 'NAME SEED' line"]}
+            print(answer_line(False, answer), flush=True)
+            continue
+        try:
+            folder = render_one(name, seed)
+            answer = {"name": name, "seed": seed, "folder": str(folder)}
+            print(answer_line(True, answer), flush=True)
+        except Exception:
+            tail = traceback.format_exc().strip().splitlines()[-15:]
+            print(answer_line(False, {"name": name, "seed": seed, "error": tail}), flush=True)
 
 
 if __name__ == "__main__":

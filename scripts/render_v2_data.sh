@@ -8,14 +8,17 @@
 #            all 24 test scenes
 #   train128 training scenes, 128 px, 16 views each, in rounds of 60 family scenes + 2 of
 #            each hard scene, so a run stopped at any point has every kind
-# Colour: 16 samples + Cycles' denoiser: 36.5 dB against a 512-sample render, where 16 samples
-# alone give 31.6 dB and 64 samples 38.8 dB (tabletop seed 1, 128 px, 4 views).
+# Colour: Cycles' denoiser after SAMPLES samples (default 8). Against 512-sample renders
+# (BENCHMARKS "Scene rendering"), 8 samples + denoiser give 29-37 dB and 16 + denoiser 31-39
+# dB at 0.6x the time per view; every model here is below 21 dB, so the noise left is far
+# below the error it learns from. Scenes rendered before 2026-11-24 used 16 (the scene's
+# transforms.json records its samples).
 # Usage: scripts/render_v2_data.sh eval|train [ROUNDS]  (eval: val128 + test256; train: ROUNDS
 # rounds, default 40 = 2,880 scenes). The two parts can run at once (WORKERS=1 each).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
-SAMPLES=${SAMPLES:-16}
+SAMPLES=${SAMPLES:-8}
 HARD="textureless specular near_far thin_structures repeated_pattern inside_outside"
 R="$P scenes render --samples $SAMPLES --denoise --workers ${WORKERS:-2}"
 part=${1:?usage: render_v2_data.sh eval|train [ROUNDS]}

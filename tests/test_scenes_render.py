@@ -205,6 +205,36 @@ def test_cli_renders_in_parallel_and_skips_finished_scenes(tmp_path):
     ]
 
 
+def _cli_render(out: Path, *extra: str) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "prosplat", "scenes", "render", "--out", str(out), "--size"]
+    cmd += ["16", "--samples", "2", "--inputs", "2", "--targets", "1", *extra]
+    return subprocess.run(cmd, capture_output=True, text=True)
+
+
+def test_one_worker_renders_scene_after_scene_as_fresh_processes_do(tmp_path):
+    """A long-lived worker renders its second scene as a process of its own would (each scene
+    starts from Blender's factory settings): the same images up to 1/255 and the same depth."""
+    res = _cli_render(tmp_path / "batch", "--seed", "0", "--count", "2", "--workers", "1")
+    assert res.returncode == 0, res.stderr[-3000:]
+    res = _cli_render(tmp_path / "fresh", "--seed", "1", "--count", "1", "--workers", "1")
+    assert res.returncode == 0, res.stderr[-3000:]
+    a = load_scene(tmp_path / "batch" / "tabletop_000001")
+    b = load_scene(tmp_path / "fresh" / "tabletop_000001")
+    assert (a.images - b.images).abs().max() <= 1 / 255 + 1e-6
+    assert torch.equal(a.depths, b.depths)
+
+
+def test_a_failing_scene_is_reported_and_the_worker_goes_on(tmp_path):
+    """Every failing scene is named with its error and counted; the run exits 1, writes no
+    folder for it, and a worker that fails one scene still takes the next."""
+    res = _cli_render(tmp_path, "--seed", "0", "--count", "2", "--workers", "1", "--scene", "nope")
+    assert res.returncode == 1
+    assert "scene nope seed 0 failed" in res.stderr and "scene nope seed 1 failed" in res.stderr
+    assert "room" in res.stderr  # the builder's error lists the valid names
+    assert "rendered 0 scenes" in res.stdout and "2 failed" in res.stdout
+    assert not any(p.name.startswith("nope") for p in tmp_path.iterdir())
+
+
 def test_scenes_list_reports_split_family_and_overlap(tabletop):
     out = tabletop[0].parent
     res = subprocess.run(

@@ -349,10 +349,13 @@ def test_devices_follow_the_local_rank_and_one_process_needs_no_group(monkeypatc
     assert single.mean_all({"loss": 2.5}) == {"loss": 2.5} and single.wrap(lin) is lin
 
 
-def test_init_starts_from_given_weights_and_input_depth_is_supervised(dataset, tmp_path):
+@pytest.mark.parametrize("depth_loss", ["inverse", "log"])
+def test_init_starts_from_given_weights_and_input_depth_is_supervised(
+    dataset, tmp_path, depth_loss
+):
     """--init loads weights at step 0 (a fresh optimiser); the input-depth term is the L1 of
-    inverse depth between the generator's input depth maps and Blender's, and training on it
-    alone moves the predicted depth towards the truth."""
+    inverse (or log) depth between the generator's input depth maps and Blender's, and training
+    on it alone moves the predicted depth towards the truth."""
     torch.manual_seed(0)
     start = ProSplat().save(tmp_path / "start.safetensors")
     fixed = str(dataset.parent / "fixed")
@@ -371,6 +374,7 @@ def test_init_starts_from_given_weights_and_input_depth_is_supervised(dataset, t
         lr=2e-3,
         init=str(start),
         input_depth_weight=10.0,
+        depth_loss=depth_loss,
         save_every=30,
     )
     train(cfg, progress=False)
@@ -504,3 +508,23 @@ def test_training_with_targets_at_twice_the_input_size(tmp_path):
     rec = json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[-1])
     assert math.isfinite(rec["loss"]) and math.isfinite(rec["val_psnr"])
     assert read_checkpoint(path, "generator")[1]["trained_size"] == "32"
+
+
+def test_log_depth_loss_is_the_same_at_every_scene_scale():
+    """--depth-loss log scores the relative error (a scene scaled by s scores the same), while
+    the inverse-depth L1 scales with 1/s; both are 0 for the true depth and reject unknown
+    kinds at construction."""
+    from prosplat.train.generator import depth_error
+
+    gt = torch.tensor([1.0, 2.0, 4.0, 8.0])
+    pred = gt * torch.tensor([1.5, 0.5, 1.0, 2.0])
+    for s in (0.1, 1.0, 30.0):
+        torch.testing.assert_close(
+            depth_error(pred * s, gt * s, "log"),
+            torch.log(torch.tensor([1.5, 2.0, 1.0, 2.0])).mean(),
+        )
+    inv = depth_error(pred, gt, "inverse")
+    torch.testing.assert_close(depth_error(pred * 10, gt * 10, "inverse"), inv / 10)
+    assert float(depth_error(gt, gt, "log")) == 0 and float(depth_error(gt, gt, "inverse")) == 0
+    with pytest.raises(ValueError, match="depth_loss"):
+        TrainConfig(data="x", out="y", depth_loss="l2")

@@ -222,6 +222,10 @@ class TrainConfig:
     # L1 on inverse depth of the generator's per-input-view depth maps vs Blender's: direct
     # supervision of the depth head (DepthSplat gets it from a pretrained depth model)
     input_depth_weight: float = 0.0
+    # how both depth terms compare depths: "inverse" (L1 of 1/z, in scene units, so scenes of
+    # small depth weigh most) or "log" (L1 of log z: the relative error AbsRel scores, the same
+    # for a scene at any scale)
+    depth_loss: str = "inverse"
     # the input cameras re-rendered from ALL views' Gaussians, scored like targets (colour, and
     # depth with depth_weight): makes the views' Gaussians agree where they see one surface
     input_render_weight: float = 0.0
@@ -256,6 +260,10 @@ class TrainConfig:
     def __post_init__(self) -> None:
         check_intervals(self, "log_every", "val_every", "save_every")
         input_counts(self.inputs)  # fail at construction, not at the first step
+        if self.depth_loss not in DEPTH_LOSSES:
+            raise ValueError(
+                f"depth_loss must be one of {list(DEPTH_LOSSES)}, got {self.depth_loss!r}"
+            )
         train_sizes(self.sizes)
         if self.stop_at is not None and self.stop_at < 1:
             raise ValueError(f"stop_at must be >= 1, got {self.stop_at}")
@@ -355,10 +363,8 @@ def render_loss(
                     gt_d = depths[b, j]
                     valid = (gt_d > 0) & (out.alpha > 0.5)
                     if valid.any():
-                        inv = 1 / out.depth[valid].clamp_min(1e-3)
-                        sums["depth"] = (
-                            sums["depth"] + weight * (inv - 1 / gt_d[valid]).abs().mean()
-                        )
+                        err = depth_error(out.depth[valid], gt_d[valid], cfg.depth_loss)
+                        sums["depth"] = sums["depth"] + weight * err
     n = b_size * m
     parts = {k: v / n for k, v in sums.items()}
     if cfg.input_render_weight > 0:
@@ -368,8 +374,7 @@ def render_loss(
         gt_d = batch["input_depths"]  # [B,V,H,W], 0 = no surface
         valid = gt_d > 0
         if valid.any():
-            pred = output.depths[valid].clamp_min(1e-3)  # [B,V,H,W] -> [K]
-            parts["input_depth"] = (1 / pred - 1 / gt_d[valid]).abs().mean()
+            parts["input_depth"] = depth_error(output.depths[valid], gt_d[valid], cfg.depth_loss)
     loss = (
         parts["mse"]
         + cfg.lpips_weight * parts["lpips"]
@@ -378,6 +383,20 @@ def render_loss(
         + cfg.input_depth_weight * parts["input_depth"]
     )
     return loss, {k: float(v.detach()) for k, v in parts.items()}
+
+
+DEPTH_LOSSES = ("inverse", "log")
+
+
+def depth_error(pred: Tensor, gt: Tensor, kind: str) -> Tensor:
+    """Mean L1 between predicted and Blender depths ``[K]`` (gt > 0): of inverse depth
+    (``"inverse"``) or of log depth (``"log"``, scale-free: ``|log(pred / gt)|`` is the
+    relative error to first order, what the AbsRel score measures). Predictions are clamped
+    to 1e-3 so that a depth of 0 stays finite."""
+    pred = pred.clamp_min(1e-3)
+    if kind == "log":
+        return (pred.log() - gt.log()).abs().mean()
+    return (1 / pred - 1 / gt).abs().mean()
 
 
 def lr_at(step: int, cfg) -> float:
