@@ -91,6 +91,8 @@ def test_resize_batch_keeps_geometry_and_drops_depth_edges():
     images = torch.rand(b, v, 3, h, h)
     depth = torch.full((b, v, h, h), 2.0)
     depth[..., :, 33:] = 4.0  # an edge inside the 2x2 block of columns 32-33
+    depth[..., :8, :] = 0.0  # sky: rows 0-7 hit nothing
+    depth[..., 8, :] = 0.0  # row 8 is half sky, half surface after resizing (rows 8-9)
     K = torch.tensor([[50.0, 0, 32], [0, 50, 32], [0, 0, 1]]).expand(b, v, 3, 3)
     batch = {
         "input_images": images,
@@ -104,9 +106,14 @@ def test_resize_batch_keeps_geometry_and_drops_depth_edges():
     assert out["input_images"].shape == (b, v, 3, 32, 32)
     assert torch.allclose(out["input_K"][0, 0, 0], torch.tensor([25.0, 0, 16]))
     d = out["input_depths"][0, 0]
-    assert torch.allclose(d[:, :16], torch.full_like(d[:, :16], 2.0))
+    assert torch.allclose(d[5:, :16], torch.full_like(d[5:, :16], 2.0))
     assert (d[:, 16] == 0).all()  # the block that straddles the edge is not supervised
-    assert torch.allclose(d[:, 17:], torch.full_like(d[:, 17:], 4.0))
+    assert torch.allclose(d[5:, 17:], torch.full_like(d[5:, 17:], 4.0))
+    # background only where the whole footprint saw nothing: not at the edge, not at row 4
+    # (half sky, half surface), though both have depth 0
+    assert (d[:5] == 0).all()
+    sky = out["input_background"][0, 0]
+    assert sky[:4].all() and not sky[4:].any()
     # a constant image stays constant (antialiasing does not darken borders)
     flat = resize_batch({**batch, "input_images": torch.full_like(images, 0.25)}, 32)
     assert torch.allclose(flat["input_images"], torch.tensor(0.25), atol=1e-6)
