@@ -508,7 +508,6 @@ def build_parser() -> argparse.ArgumentParser:
         "ssim_weight",
         "depth_weight",
         "input_depth_weight",
-        "background_depth_weight",
         "input_render_weight",
         "crop_prob",
         "grad_clip",

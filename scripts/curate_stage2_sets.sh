@@ -7,7 +7,8 @@
 # Finished sets are kept, so re-running only makes what is missing (~25 min on 2 cores from
 # nothing, two curations at a time).
 #   scripts/curate_stage2_sets.sh [DIR [NAME...]]   (default runs/s2v3 and all six sets; NAMEs
-#   pick some of them, e.g. raw64 raw128; GEN= another generator checkpoint)
+#   pick some of them, e.g. raw64 raw128; GEN= another generator checkpoint; DATA= another
+#   training-scene folder than data/train128, e.g. the subset a generator was trained on)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -15,6 +16,7 @@ P=${PROSPLAT:-.venv/bin/prosplat}
 # this 2-core machine made them 5-10x slower
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 DIR=${1:-runs/s2v3}
+DATA=${DATA:-data/train128}
 WANT=" ${*:2} "
 mkdir -p "$DIR"
 curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
@@ -22,11 +24,11 @@ curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
   [ -f "$DIR/$1.safetensors" ] || $P train curate --data $2 --out "$DIR/$1.safetensors" \
     --views $3 --size $4 --generator-size 64 --refine-steps $5 ${GEN:+--generator "$GEN"}
 }
-curate raw64 data/train128 2,3,4,6 64 0 &
-curate ref128 data/train128 2,4 128 300
+curate raw64 $DATA 2,3,4,6 64 0 &
+curate ref128 $DATA 2,4 128 300
 wait
-curate raw128 data/train128 2,4 128 0 &
-curate ref64 data/train128 2,4 64 300
+curate raw128 $DATA 2,4 128 0 &
+curate ref64 $DATA 2,4 64 300
 wait
 curate val_ref128 data/val128 4 128 300 &
 curate val_raw64 data/val128 2,4 64 0

@@ -142,9 +142,7 @@ def resize_batch(
     Images: antialiased bilinear (what a lower-resolution camera integrates). Depths: the
     bilinear value at the new pixel centre where the 2x2 (or larger) footprint agrees within
     5 %, else 0 (no supervision across depth edges or where part of it hit nothing, where a
-    blend is no surface at all); and
-    ``{group}_background`` [B,M,s,s], true where no ray of the footprint hit anything (the
-    depth's 0 alone no longer tells background from an edge).
+    blend is no surface at all).
     """
     import torch.nn.functional as F
 
@@ -176,7 +174,6 @@ def resize_batch(
         ok = (lo > 0) & (hi <= lo * 1.05)  # one surface: a blend with the sky is no depth
         shape = (*batch[f"{group}_depths"].shape[:2], s, s)
         out[f"{group}_depths"] = torch.where(ok, mid, torch.zeros_like(mid))[:, 0].view(shape)
-        out[f"{group}_background"] = (hi == 0)[:, 0].view(shape)
     return out
 
 
@@ -189,8 +186,7 @@ def crop_batch(batch: dict[str, Tensor], size: int, top: int, left: int) -> dict
     if not (0 <= top <= h - size and 0 <= left <= w - size):
         raise ValueError(f"crop {size} px at ({top}, {left}) does not fit {w}x{h} images")
     out = dict(batch)
-    keys = ("input_images", "target_images", "input_depths", "target_depths")
-    for key in keys + ("input_background", "target_background"):
+    for key in ("input_images", "target_images", "input_depths", "target_depths"):
         if key in batch:
             out[key] = batch[key][..., top : top + size, left : left + size]
     for key in ("input_K", "target_K"):
@@ -230,10 +226,6 @@ class TrainConfig:
     # small depth weigh most) or "log" (L1 of log z: the relative error AbsRel scores, the same
     # for a scene at any scale)
     depth_loss: str = "inverse"
-    # the same term for input pixels where Blender's rays hit nothing (sky, world backdrop),
-    # toward the scene's far bound: unsupervised, they drift to mid depths and hang as a haze
-    # in front of other cameras
-    background_depth_weight: float = 0.0
     # the input cameras re-rendered from ALL views' Gaussians, scored like targets (colour, and
     # depth with depth_weight): makes the views' Gaussians agree where they see one surface
     input_render_weight: float = 0.0
@@ -383,20 +375,12 @@ def render_loss(
         valid = gt_d > 0
         if valid.any():
             parts["input_depth"] = depth_error(output.depths[valid], gt_d[valid], cfg.depth_loss)
-    parts["background_depth"] = zero
-    if cfg.background_depth_weight > 0 and "input_depths" in batch:
-        empty = batch.get("input_background", batch["input_depths"] == 0)  # [B,V,H,W]
-        if empty.any():
-            far = batch["far"].to(output.depths.dtype)[:, None, None, None]  # [B,1,1,1]
-            far = far.expand_as(output.depths)[empty]
-            parts["background_depth"] = depth_error(output.depths[empty], far, cfg.depth_loss)
     loss = (
         parts["mse"]
         + cfg.lpips_weight * parts["lpips"]
         + cfg.ssim_weight * parts["ssim"]
         + cfg.depth_weight * parts["depth"]
         + cfg.input_depth_weight * parts["input_depth"]
-        + cfg.background_depth_weight * parts["background_depth"]
     )
     return loss, {k: float(v.detach()) for k, v in parts.items()}
 

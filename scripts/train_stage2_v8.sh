@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Stage 2 v8 (candidate): v7 fine-tuned on generator v4's renders. v4 puts surfaces at their
+# depth instead of on a far shell, so its renders have holes where no input saw the scene
+# and its warped references land where they belong: v7 never saw either. v7's recipe
+# otherwise (the warp, replicate padding, alpha, 48-px crops, flips, LPIPS weight 0.1), raw
+# renders at 64 and 128 px of the 246 scenes v4 was trained on (data/gen_v4b, made by
+# scripts/train_generator_v4.sh), curated with the warped references.
+# Resumable: finished sets are kept, and re-running continues the training run.
+#   scripts/train_stage2_v8.sh [STEPS]   (default 3000; GEN= the generator, default
+#   runs/generator_v4.safetensors; INIT= the starting stage 2, default v7 from git history;
+#   OUT=)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+P=${PROSPLAT:-.venv/bin/prosplat}
+GEN=${GEN:-runs/generator_v4.safetensors}
+INIT=${INIT:-runs/s2v8/v7.safetensors}
+. scripts/shipped_before.sh
+shipped_before "$INIT" improve_tiny.safetensors 6937825  # stage 2 v7
+[ -f "$GEN" ] || { echo "no generator $GEN: run scripts/train_generator_v4.sh first" >&2; exit 1; }
+SETS=${SETS:-runs/s2v8/sets}
+OUT=${OUT:-runs/s2v8/run}
+# two curations at once (one thread each), then the training on both threads
+GEN="$GEN" DATA=data/gen_v4b scripts/curate_stage2_sets.sh $SETS raw64 val_raw64 &
+GEN="$GEN" DATA=data/gen_v4b scripts/curate_stage2_sets.sh $SETS raw128
+wait
+OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train improve \
+  --data $SETS/raw64.safetensors,$SETS/raw128.safetensors \
+  --val $SETS/val_raw64.safetensors --out "$OUT" --init "$INIT" --warp \
+  --padding replicate --alpha --crop 48 --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 100 \
+  --lpips-weight 0.1 --val-every 500 --save-every 100 --log-every 50
