@@ -118,12 +118,13 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
     failures: list[tuple[str, int, list[str]]] = []
     bar = tqdm(total=len(jobs), desc="rendering scenes", unit="scene")
     lock = threading.Lock()
+    stop = threading.Event()  # Ctrl-C: no worker takes another scene
 
     def worker() -> None:
         """One long-lived Blender process fed scene after scene (start-up paid once); a
         process that dies fails its current scene and is replaced for the next."""
         proc = None
-        while True:
+        while not stop.is_set():
             try:
                 name, seed = queue.get_nowait()
             except Empty:
@@ -150,11 +151,18 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
             proc.stdin.close()
             proc.wait()
 
-    threads_ = [threading.Thread(target=worker) for _ in range(min(args.workers, len(jobs)))]
+    n_workers = min(args.workers, len(jobs))
+    threads_ = [threading.Thread(target=worker, daemon=True) for _ in range(n_workers)]
     for t in threads_:
         t.start()
-    for t in threads_:
-        t.join()
+    try:
+        for t in threads_:
+            t.join()
+    except KeyboardInterrupt:
+        # the terminal's SIGINT reaches the Blender workers too: each removes its half-made
+        # scene folder and exits; a worker stopped otherwise ends when its stdin closes
+        stop.set()
+        raise
     bar.close()
     for name, seed, tail in failures:
         print(f"scene {name} seed {seed} failed:\n  " + "\n  ".join(tail), file=sys.stderr)

@@ -218,9 +218,9 @@ class TrainConfig:
     weight_decay: float = 0.01
     lpips_weight: float = 0.05
     ssim_weight: float = 0.0
-    depth_weight: float = 0.0  # L1 on inverse depth of rendered vs Blender depth
-    # L1 on inverse depth of the generator's per-input-view depth maps vs Blender's: direct
-    # supervision of the depth head (DepthSplat gets it from a pretrained depth model)
+    depth_weight: float = 0.0  # rendered vs Blender depth at the targets (see depth_loss)
+    # the generator's per-input-view depth maps vs Blender's: direct supervision of the depth
+    # head (DepthSplat gets it from a pretrained depth model; see depth_loss)
     input_depth_weight: float = 0.0
     # how both depth terms compare depths: "inverse" (L1 of 1/z, in scene units, so scenes of
     # small depth weigh most) or "log" (L1 of log z: the relative error AbsRel scores, the same
