@@ -73,7 +73,7 @@ def main() -> None:
         scene = load_scene(folder)
         kind = folder.name.rsplit("_", 1)[0]
         r = scene_at(scene, args.views, args.size)
-        gt = resize_depths(scene.depths, r.cameras[0].width, r.cameras[0].height)[r.inputs]
+        gt = resize_depths(scene.depths[r.inputs], r.cameras[0].width, r.cameras[0].height)
         valid = gt > 0  # [V,H,W]: pixels with a surface
         const = torch.full_like(gt, float(gt[valid].median()))
         rows["constant (true median)"][kind].append(depth_scores(const, gt, valid))

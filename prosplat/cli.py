@@ -151,12 +151,13 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
             proc.stdin.close()
             proc.wait()
 
-    n_workers = min(args.workers, len(jobs))
-    threads_ = [threading.Thread(target=worker, daemon=True) for _ in range(n_workers)]
-    for t in threads_:
+    feeders = [
+        threading.Thread(target=worker, daemon=True) for _ in range(min(args.workers, len(jobs)))
+    ]
+    for t in feeders:
         t.start()
     try:
-        for t in threads_:
+        for t in feeders:
             t.join()
     except KeyboardInterrupt:
         # the terminal's SIGINT reaches the Blender workers too: each removes its half-made

@@ -16,7 +16,8 @@ GEN=${GEN:-runs/generator_v4.safetensors}
 INIT=${INIT:-runs/s2v8/v7.safetensors}
 . scripts/shipped_before.sh
 shipped_before "$INIT" improve_tiny.safetensors 6937825  # stage 2 v7
-[ -f "$GEN" ] || { echo "no generator $GEN: run scripts/train_generator_v4.sh first" >&2; exit 1; }
+[ -f "$GEN" ] && [ -d data/gen_v4b ] ||
+  { echo "no $GEN or data/gen_v4b: run scripts/train_generator_v4.sh first" >&2; exit 1; }
 SETS=${SETS:-runs/s2v8/sets}
 OUT=${OUT:-runs/s2v8/run}
 # two curations at once (one thread each), then the training on both threads
