@@ -61,40 +61,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_scenes_render(args: argparse.Namespace) -> int:
-    """Render scenes ``seed .. seed+count-1`` with ``--workers`` long-lived Blender processes
-    (``scenes.render --jobs-from-stdin``), each fed the next missing scene as it finishes one."""
+def render_worker_command(args: argparse.Namespace) -> list[str]:
+    """The command line of one long-lived Blender worker of ``prosplat scenes render``: Cycles
+    gets ``--threads`` threads, by default the machine's cores shared by the workers."""
     import os
-    import subprocess
-    import threading
-    from queue import Empty, Queue
 
-    from tqdm import tqdm
-
-    from prosplat.data.splits import family_for_seed, split_of
-    from scenes.jobs import read_answer
-
-    if args.count < 1 or args.workers < 1 or args.size < 8 or args.samples < 1:
-        print(
-            "prosplat scenes render: --count, --workers, --samples must be >= 1 and --size >= 8",
-            file=sys.stderr,
-        )
-        return 2
-    for s in (args.seed, args.seed + args.count - 1):
-        split_of(s)  # raises with the valid range for seeds outside every split
-    jobs = []
-    for seed in range(args.seed, args.seed + args.count):
-        name = args.scene or family_for_seed(seed)
-        if (args.out / f"{name}_{seed:06d}").is_dir():
-            continue  # complete: folders only appear when finished
-        jobs.append((name, seed))
-    skipped = args.count - len(jobs)
-    if skipped:
-        print(f"{skipped} of {args.count} scenes already rendered in {args.out}; skipping them")
-    if not jobs:
-        return 0
-    threads = max(1, (os.cpu_count() or 1) // args.workers)
-    cmd = [
+    threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+    return [
         sys.executable,
         "-m",
         "scenes.render",
@@ -112,6 +85,43 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
         "--threads",
         str(threads),
     ] + (["--denoise"] if args.denoise else [])
+
+
+def cmd_scenes_render(args: argparse.Namespace) -> int:
+    """Render scenes ``seed .. seed+count-1`` with ``--workers`` long-lived Blender processes
+    (``scenes.render --jobs-from-stdin``), each fed the next missing scene as it finishes one."""
+    import subprocess
+    import threading
+    from queue import Empty, Queue
+
+    from tqdm import tqdm
+
+    from prosplat.data.splits import family_for_seed, split_of
+    from scenes.jobs import read_answer
+
+    if args.count < 1 or args.workers < 1 or args.size < 8 or args.samples < 1:
+        print(
+            "prosplat scenes render: --count, --workers, --samples must be >= 1 and --size >= 8",
+            file=sys.stderr,
+        )
+        return 2
+    if args.threads is not None and args.threads < 1:
+        print("prosplat scenes render: --threads must be >= 1", file=sys.stderr)
+        return 2
+    for s in (args.seed, args.seed + args.count - 1):
+        split_of(s)  # raises with the valid range for seeds outside every split
+    jobs = []
+    for seed in range(args.seed, args.seed + args.count):
+        name = args.scene or family_for_seed(seed)
+        if (args.out / f"{name}_{seed:06d}").is_dir():
+            continue  # complete: folders only appear when finished
+        jobs.append((name, seed))
+    skipped = args.count - len(jobs)
+    if skipped:
+        print(f"{skipped} of {args.count} scenes already rendered in {args.out}; skipping them")
+    if not jobs:
+        return 0
+    cmd = render_worker_command(args)
     queue: Queue = Queue()
     for job in jobs:
         queue.put(job)
@@ -430,6 +440,13 @@ def build_parser() -> argparse.ArgumentParser:
     rend.add_argument("--denoise", action="store_true", help="run Cycles' denoiser (default off)")
     rend.add_argument(
         "--workers", type=int, default=2, help="parallel Blender processes (default 2)"
+    )
+    rend.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="Cycles threads per worker (default: the machine's cores / --workers); fewer "
+        "leaves cores to a training run beside the rendering",
     )
     rend.add_argument(
         "--scene",

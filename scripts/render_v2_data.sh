@@ -15,12 +15,14 @@
 # transforms.json records its samples).
 # Usage: scripts/render_v2_data.sh eval|train [ROUNDS]  (eval: val128 + test256; train: ROUNDS
 # rounds, default 40 = 2,880 scenes). The two parts can run at once (WORKERS=1 each).
+# THREADS=N: Cycles threads per worker (default: the cores / WORKERS), e.g. 1 beside a
+# one-thread training run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
 SAMPLES=${SAMPLES:-8}
 HARD="textureless specular near_far thin_structures repeated_pattern inside_outside"
-R="$P scenes render --samples $SAMPLES --denoise --workers ${WORKERS:-2}"
+R="$P scenes render --samples $SAMPLES --denoise --workers ${WORKERS:-2} ${THREADS:+--threads $THREADS}"
 part=${1:?usage: render_v2_data.sh eval|train [ROUNDS]}
 hard_tests() {  # SIZE OUT: the 6 hard test scenes, seeds 950100-5
   local seed=950100 s

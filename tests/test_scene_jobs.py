@@ -23,3 +23,22 @@ def test_a_failure_carries_its_error_and_a_dead_worker_returns_none():
     lines = "".join(f"line {i}\n" for i in range(20))
     answer, tail = read_answer(io.StringIO(lines), keep=5)
     assert answer is None and tail == [f"line {i}" for i in range(15, 20)]
+
+
+def test_the_worker_command_shares_the_cores_unless_threads_is_given(monkeypatch, tmp_path):
+    import os
+
+    from prosplat.cli import build_parser, cmd_scenes_render, render_worker_command
+
+    def threads_of(*extra: str) -> int:
+        args = build_parser().parse_args(["scenes", "render", "--out", str(tmp_path), *extra])
+        cmd = render_worker_command(args)
+        return int(cmd[cmd.index("--threads") + 1])
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    assert threads_of() == 4  # 2 workers by default
+    assert threads_of("--workers", "3") == 2
+    assert threads_of("--workers", "16") == 1
+    assert threads_of("--workers", "2", "--threads", "1") == 1
+    bad = build_parser().parse_args(["scenes", "render", "--out", str(tmp_path), "--threads", "0"])
+    assert cmd_scenes_render(bad) == 2  # refused before any Blender starts
