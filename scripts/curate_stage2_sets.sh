@@ -7,8 +7,10 @@
 # Finished sets are kept, so re-running only makes what is missing (~25 min on 2 cores from
 # nothing, two curations at a time).
 #   scripts/curate_stage2_sets.sh [DIR [NAME...]]   (default runs/s2v3 and all six sets; NAMEs
-#   pick some of them, e.g. raw64 raw128; GEN= another generator checkpoint; DATA= another
-#   training-scene folder than data/train128, e.g. the subset a generator was trained on)
+#   pick some of them, e.g. raw64 raw128; GEN= another generator checkpoint; GEN_SIZE= the
+#   largest size the generator runs at, default 64, e.g. 128 for one trained at 64 and 128 px
+#   as the pipeline runs it; DATA= another training-scene folder than data/train128, e.g. the
+#   subset a generator was trained on)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -22,7 +24,7 @@ mkdir -p "$DIR"
 curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
   [ "$WANT" = "  " ] || [[ "$WANT" == *" $1 "* ]] || return 0
   [ -f "$DIR/$1.safetensors" ] || $P train curate --data $2 --out "$DIR/$1.safetensors" \
-    --views $3 --size $4 --generator-size 64 --refine-steps $5 ${GEN:+--generator "$GEN"}
+    --views $3 --size $4 --generator-size ${GEN_SIZE:-64} --refine-steps $5 ${GEN:+--generator "$GEN"}
 }
 curate raw64 $DATA 2,3,4,6 64 0 &
 curate ref128 $DATA 2,4 128 300
