@@ -11,11 +11,18 @@ STAMP  := $(VENV)/.prosplat-setup
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml Makefile
+# Run-time requirements are held at addon/pins.py's versions (the set the add-on installs and
+# the tests assert on), so a clean clone tests what was pinned, not whatever the index holds
+# today. To move a pin: pip install -U it in .venv, then python scripts/pin_requirements.py.
+CONSTRAINTS := $(VENV)/constraints.txt
+
+$(STAMP): pyproject.toml Makefile addon/pins.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -c "import runpy; p = runpy.run_path('addon/pins.py'); \
+		print(*(f'{n}=={v}' for n, v in p['PINS'] if n != 'torch'), sep='\n')" > $(CONSTRAINTS)
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e ".[blender,test,bench,lora]"
+	$(PY) -m pip install --quiet -c $(CONSTRAINTS) -e ".[blender,test,bench,lora]"
 	$(PY) -m prosplat.metrics.lpips_weights
 	touch $(STAMP)
 
