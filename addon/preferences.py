@@ -165,7 +165,7 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         name="Input Size", default=runtime.Defaults.max_input_size, min=32, soft_max=1024,
         description="Long side (pixels) input images are scaled to: the size refinement fits "
         "and stage 2's references come at. The generator itself runs at the size its weights "
-        "were trained at (64 px high for the shipped ones) when that is smaller",
+        "were trained at (128 px high for the shipped ones) when that is smaller",
     )  # fmt: skip
     python_path: StringProperty(
         name="External Python", subtype="FILE_PATH",

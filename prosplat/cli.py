@@ -386,13 +386,15 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="(default out/demo)")
     demo.add_argument("--scene", default="tabletop", help="scene family or hard scene name")
     demo.add_argument("--seed", type=int, default=950002, help="scene seed (default: a test one)")
+    from prosplat.demo import DEMO_SIZE
     from prosplat.pipeline import TRAINED_SIZE
 
     demo.add_argument(
         "--size",
         type=int,
-        default=TRAINED_SIZE,
-        help=f"model resolution, multiple of 32 (default {TRAINED_SIZE}: the shipped weights')",
+        default=DEMO_SIZE,
+        help=f"model resolution, multiple of 32 (default {DEMO_SIZE}, fast; the shipped "
+        f"generator runs up to {TRAINED_SIZE})",
     )
     demo.add_argument(
         "--render-scale", type=int, default=2, help="Blender renders at size x this (default 2)"

@@ -34,9 +34,10 @@ CHECKPOINT_FORMAT = "prosplat-generator"
 #: released files, or prosplat's fine-tune of one); prosplat's own generators are safetensors.
 DEPTHSPLAT_SUFFIXES = (".pth", ".pt", ".ckpt")
 
-#: The image size (pixels, the short side) the shipped weights were trained at: the default
-#: model resolution of every command that runs them (``prosplat demo``, ``prosplat reconstruct``).
-TRAINED_SIZE = 64
+#: The image size (pixels, the short side) the shipped weights were trained at (v5: 64 and
+#: 128 px): the generator runs at most this high, and ``prosplat reconstruct`` loads its inputs
+#: at this size by default. ``prosplat demo`` runs at 64 px (``demo.DEMO_SIZE``) to stay fast.
+TRAINED_SIZE = 128
 
 #: near = NEAR_FACTOR · (smallest camera distance) · f / image size (see near_far_from_cameras)
 NEAR_FACTOR = 0.5

@@ -12,6 +12,7 @@ from prosplat.cli import build_parser, main
 from prosplat.data import load_scene
 from prosplat.demo import DemoConfig
 from prosplat.evaluate import evaluate_scene, pick_inputs, refine_label, refine_method
+from prosplat.pipeline import TRAINED_SIZE
 
 
 @pytest.fixture(scope="module")
@@ -55,25 +56,26 @@ def test_reconstruct_refines_the_pruned_gaussians(scene, model):
 def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
     model, tmp_path_factory
 ):
-    """The shipped weights were trained at 64 px: given 128-px inputs, the pipeline runs the
-    generator on them resized to 64 px (a quarter of the Gaussians), the Gaussians render at
-    128 px, and refinement fits the 128-px inputs. ``generator_height=0`` runs it at the
-    inputs' size; a saved model keeps its trained size."""
+    """The shipped weights were trained at up to T = 128 px: given 2T-px inputs, the pipeline
+    runs the generator on them resized to T px (a quarter of the Gaussians), the Gaussians
+    render at 2T px, and refinement fits the 2T-px inputs. ``generator_height=0`` runs it at
+    the inputs' size; a saved model keeps its trained size."""
+    t = TRAINED_SIZE
     folder = tmp_path_factory.mktemp("big") / "scene_b"
-    write_synthetic_scene(folder, size=128, n_views=5)
+    write_synthetic_scene(folder, size=2 * t, n_views=5)
     big = load_scene(folder)
     images, cams, near, far = scene_inputs(big)
-    assert model.trained_size == 64
+    assert model.trained_size == t == 128
     small, small_cams = model.generator_views(images, cams)
-    assert small.shape[-2:] == (64, 64) and (small_cams[0].width, small_cams[0].height) == (64, 64)
+    assert small.shape[-2:] == (t, t) and (small_cams[0].width, small_cams[0].height) == (t, t)
     assert torch.equal(small_cams[0].center, cams[0].center)  # same camera, scaled intrinsics
-    assert len(model.reconstruct(images, cams, near, far)) == 3 * 64 * 64
-    assert len(model.reconstruct(images, cams, near, far, generator_height=0)) == 3 * 128 * 128
+    assert len(model.reconstruct(images, cams, near, far)) == 3 * t * t
+    assert len(model.reconstruct(images, cams, near, far, generator_height=0)) == 3 * 4 * t * t
     res = model.reconstruct_refined(images, cams, near, far, steps=3)
-    assert res.stats.pruned_from == 3 * 64 * 64
+    assert res.stats.pruned_from == 3 * t * t
     from prosplat.render import render
 
-    assert render(res.gaussians, cams[0]).rgb.shape[-2:] == (128, 128)
+    assert render(res.gaussians, cams[0]).rgb.shape[-2:] == (2 * t, 2 * t)
     # inputs already at or below the trained size are left as they are
     same, _ = model.generator_views(small, small_cams)
     assert same is small
