@@ -7,7 +7,7 @@
 # Resumable: finished sets are kept, and re-running continues the training run.
 #   scripts/train_stage2_v9.sh [STEPS]   (default 3000; GEN= the generator, default
 #   runs/generator_v5.safetensors; INIT= the starting stage 2, default v7 from git history;
-#   OUT=; IDENTITY= the --identity-frac, default 0: v10 is IDENTITY=0.25 OUT=runs/s2v10/run)
+#   OUT=)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -28,5 +28,4 @@ OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train improve \
   --data $SETS/raw64.safetensors,$SETS/raw128.safetensors \
   --val $SETS/val_raw64.safetensors --out "$OUT" --init "$INIT" --warp \
   --padding replicate --alpha --crop 48 --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 100 \
-  --lpips-weight 0.1 --identity-frac "${IDENTITY:-0}" --val-every 500 --save-every 100 \
-  --log-every 50
+  --lpips-weight 0.1 --val-every 500 --save-every 100 --log-every 50

@@ -18,7 +18,6 @@ from prosplat.train.curate import curate, curated_batch, load_curated
 from prosplat.train.improve import (
     ImproveTrainConfig,
     JointTrainConfig,
-    identity_samples,
     joint_parameters,
     train_improve,
     train_joint,
@@ -136,29 +135,6 @@ def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
     train_improve(cfg6, progress=False, model_config=SMALL)
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log][-2:] == [5, 6]
-
-
-def test_identity_samples_swap_in_the_target_with_full_alpha(setup, tmp_path) -> None:
-    """About ``frac`` of the samples get their target as the render and alpha 1, the rest are
-    untouched; the same seed swaps the same samples; training with them runs end to end."""
-    raw, gt = torch.rand(400, 3, 4, 4), torch.rand(400, 3, 4, 4)
-    alpha = torch.rand(400, 1, 4, 4)
-    out, a = identity_samples(raw, gt, alpha, 0.25, torch.Generator().manual_seed(3))
-    swapped = (out == gt).flatten(1).all(1)
-    assert torch.equal(swapped, (a == 1).flatten(1).all(1))
-    assert 70 < int(swapped.sum()) < 130  # 100 expected
-    assert torch.equal(out[~swapped], raw[~swapped]) and torch.equal(a[~swapped], alpha[~swapped])
-    again, _ = identity_samples(raw, gt, alpha, 0.25, torch.Generator().manual_seed(3))
-    assert torch.equal(again, out)
-    same, none = identity_samples(raw, gt, None, 0.0, torch.Generator().manual_seed(3))
-    assert same is raw and none is None
-    with pytest.raises(ValueError, match="identity-frac"):
-        ImproveTrainConfig(data="d", out="o", identity_frac=1.0)
-    _, _, curated = setup
-    cfg = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "id"), steps=2, batch=4,
-                             lpips_weight=0.0, alpha=True, warp=True, crop=16,
-                             identity_frac=0.5, device="cpu")  # fmt: skip
-    assert load_improver(train_improve(cfg, progress=False, model_config=SMALL)).config.warp_input
 
 
 def test_training_lowers_the_loss(setup, tmp_path) -> None:

@@ -77,15 +77,9 @@ class ImproveTrainConfig:
     # sets curated with the warp; prosplat.improve.warp)
     warp: bool = False
     padding: str = ""  # set the convolutions' padding ("zeros" | "replicate"; "": the model's)
-    # this fraction of each batch gets its target as the render (alpha 1): samples whose right
-    # answer is no change, so a fine-tune that learns to undo one generator's errors does not
-    # stamp that correction on views without them (identity_samples)
-    identity_frac: float = 0.0
 
     def __post_init__(self) -> None:
         check_intervals(self, "log_every", "val_every", "save_every")
-        if not 0.0 <= self.identity_frac < 1.0:
-            raise ValueError(f"--identity-frac must be in [0, 1), got {self.identity_frac}")
 
 
 @dataclass(frozen=True)
@@ -234,27 +228,6 @@ def train_improve(cfg: ImproveTrainConfig, progress: bool = True, model_config=N
         dist.close()
 
 
-def identity_samples(
-    raw: Tensor, gt: Tensor, alpha: Tensor | None, frac: float, generator: torch.Generator
-) -> tuple[Tensor, Tensor | None]:
-    """Swap each sample's render for its target with probability ``frac`` (its alpha to 1).
-
-    ``raw``/``gt`` [B,3,H,W], ``alpha`` [B,1,H,W] or None. Why: stage 2 fine-tuned on one
-    generator's renders learns to undo that generator's systematic errors (v4's and v5's carry
-    more energy at the 8-px lattice than v3's) and then adds the undoing to views that never
-    had them: the no-pattern probe's lattice rose from 1.45 (v7) to 1.57 after 500 steps on
-    v5's renders. A render that is already right should come back unchanged.
-    """
-    swap = torch.rand(raw.shape[0], generator=generator) < frac  # [B]
-    if not swap.any():
-        return raw, alpha
-    m = swap.to(raw.device)[:, None, None, None]
-    raw = torch.where(m, gt, raw)
-    if alpha is not None:
-        alpha = torch.where(m, torch.ones_like(alpha), alpha)
-    return raw, alpha
-
-
 def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: Dist) -> Path:
     from prosplat.metrics import LPIPS
 
@@ -351,8 +324,6 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
                 )  # fmt: skip
                 alpha = stacked[:, :1] if alpha is not None else None
                 warp = stacked[:, -4:] if warp is not None else None
-            if cfg.identity_frac:
-                raw, alpha = identity_samples(raw, gt, alpha, cfg.identity_frac, augment_rng)
             out = net(raw, ref, fund, alpha, warp)
             loss, parts = enhance_loss(out, gt, lpips_fn, cfg.lpips_weight)
             extra = {}
