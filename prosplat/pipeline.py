@@ -276,9 +276,8 @@ class ProSplat:
                 f"{path} was saved with a different generator config than the one passed; drop config= "
                 f"to use the file's ({stored.to_json()})"
             )
+        # the shipped file carries it too (tests/test_refine_wiring.py holds it to TRAINED_SIZE)
         trained = meta.get("trained_size")
-        if path.resolve() == DEFAULT_WEIGHTS.resolve():
-            trained = TRAINED_SIZE
         model = cls(
             stored or config,
             device="cpu",
