@@ -33,11 +33,13 @@ def main() -> None:
         "| weights | mean change | pattern (< 3) | lattice 8 px (< 1.5) | lattice 16 px (< 1.5) |"
     )
     print("|---|---|---|---|---|")
-    for path in paths:
-        s = probe_scores(probe_changes(load_improver(path).eval(), views=args.views))
+    for path in [None, *paths]:  # None: the ideal change, the floor a perfect model scores
+        model = None if path is None else load_improver(path).eval()
+        s = probe_scores(probe_changes(model, views=args.views))
         passes = all(s[k] < bar for k, bar in BARS.items())
         print(
-            f"| {path}{'' if passes else ' (fails)'} | {s['mean_change']:.4f} | "
+            f"| {path or 'ideal (sharp - render)'}{'' if passes else ' (fails)'} | "
+            f"{s['mean_change']:.4f} | "
             f"{s['pattern']:.2f} | {s['lattice8']:.2f} | {s['lattice16']:.2f} |"
         )
 

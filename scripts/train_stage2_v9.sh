@@ -5,7 +5,8 @@
 # its 128-px renders are curated with the generator at 128 px, as the pipeline runs it; the
 # scenes are the 246 of data/gen_v4b (v5 was trained on them and 246 more).
 # Resumable: finished sets are kept, and re-running continues the training run.
-#   scripts/train_stage2_v9.sh [STEPS]   (default 3000; GEN= the generator, default
+#   scripts/train_stage2_v9.sh [STEPS [TRAIN ARGS...]]   (default 3000; the further arguments
+#   go to `prosplat train improve`, as scripts/train_stage2_v10.sh does; GEN= the generator, default
 #   runs/generator_v5.safetensors; INIT= the starting stage 2, default v7 from git history;
 #   OUT=)
 set -euo pipefail
@@ -28,4 +29,4 @@ OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train improve \
   --data $SETS/raw64.safetensors,$SETS/raw128.safetensors \
   --val $SETS/val_raw64.safetensors --out "$OUT" --init "$INIT" --warp \
   --padding replicate --alpha --crop 48 --flip --steps "${1:-3000}" --batch 8 --lr 2e-4 --warmup 100 \
-  --lpips-weight 0.1 --val-every 500 --save-every 100 --log-every 50
+  --lpips-weight 0.1 --val-every 500 --save-every 100 --log-every 50 "${@:2}"

@@ -137,3 +137,22 @@ def test_lattice_score_finds_a_lattice_whatever_its_phase():
     assert lattice_score(_lattice_changes(24, 16, 0.0), 16).ratio == pytest.approx(1.0, abs=0.2)
     with pytest.raises(ValueError, match="multiple of the period"):
         lattice_score(lattice[:, :, :60], 16)
+
+
+def test_lattice_score_is_not_fooled_by_structure_along_one_axis():
+    """Changes that vary along one image axis only (a sky-to-floor gradient, a table edge at
+    some height) put all their power on that frequency axis. They are no lattice, and score
+    about 1 (the 8-bin ring scored these 3.9); horizontal bands every 8 px as strong as the
+    content's edges are a lattice, and are found."""
+    g = torch.Generator().manual_seed(0)
+    yy = torch.arange(64, dtype=torch.float32)[:, None].expand(64, 64)
+    views = []
+    for _ in range(32):
+        edge = int(torch.randint(8, 56, (1,), generator=g))
+        ramp = float(torch.rand(1, generator=g)) * yy / 64 + 0.05 * (yy > edge).float()
+        views.append(ramp[None].expand(3, -1, -1) + 0.01 * torch.randn(3, 64, 64, generator=g))
+    rows = torch.stack(views)
+    assert lattice_score(rows, 8).ratio == pytest.approx(1.0, abs=0.25)
+    assert lattice_score(rows.transpose(2, 3), 8).ratio == pytest.approx(1.0, abs=0.25)
+    bands = 0.05 * torch.cos(2 * torch.pi * yy / 8)
+    assert lattice_score(rows + bands, 8).ratio > 1.5

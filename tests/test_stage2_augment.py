@@ -10,7 +10,7 @@ from prosplat.camera import Camera
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.model import ImproveModel
-from prosplat.train.augment import augment_samples
+from prosplat.train.augment import augment_samples, shift_disagreement, shifted_pairs
 
 
 def _pair() -> tuple[Camera, Camera, torch.Tensor]:
@@ -133,3 +133,62 @@ def test_replicate_padding_cannot_stamp_a_pattern_on_a_flat_view():
     assert zeros.config.padding == "replicate" and spread(zeros) < 1e-5
     with pytest.raises(ValueError, match="zero to replicate"):
         zeros.set_padding("zeros")
+
+
+def test_shifted_pairs_are_one_window_moved_with_their_epipolar_geometry():
+    """The twin of a window is the same picture moved by (dy, dx), flipped alike, with the same
+    reference window, and its fundamental matrix still holds for the cameras' points."""
+    a, b, points = _pair()
+    F = fundamental_matrix(a, b).double()
+    uv_a, _ = a.project(points)
+    uv_b, _ = b.project(points)
+    ramp = torch.arange(64, dtype=torch.float32)
+    mark = torch.stack(
+        [ramp[None].expand(64, 64), ramp[:, None].expand(64, 64), torch.zeros(64, 64)]
+    )
+    batch = mark[None].expand(4, -1, -1, -1)
+    rng = torch.Generator().manual_seed(0)
+    (r, ref, f, t, al), shifts, flipped = shifted_pairs(
+        batch, batch + 0.0, F[None].expand(4, 3, 3), batch, torch.ones(4, 1, 64, 64), 48, True, rng
+    )
+    assert r.shape == (8, 3, 48, 48) and al.shape == (8, 1, 48, 48) and torch.equal(r, t)
+    assert shifts.shape == (4, 2) and bool((shifts.sum(1) > 0).all()) and int(shifts.max()) <= 7
+    assert flipped.any() and not flipped.all()  # this seed draws both
+    for i in range(4):
+        dy, dx = (int(v) for v in shifts[i])
+        first, twin = r[i], r[4 + i]
+        if flipped[i]:
+            first, twin = first.flip(-1), twin.flip(-1)
+        assert torch.equal(first[:, dy:, dx:], twin[:, : 48 - dy, : 48 - dx])
+        assert torch.equal(ref[i], ref[4 + i])
+        for k in (i, 4 + i):
+            cols = r[k, 0, 0]
+            ox, oy, fl = float(cols.min()), float(r[k, 1, 0, 0]), bool(cols[0] > cols[-1])
+            rc = ref[k, 0, 0]
+            rox, roy, rfl = float(rc.min()), float(ref[k, 1, 0, 0]), bool(rc[0] > rc[-1])
+
+            def apply(uv, ox, oy, fl):
+                u, v = uv[:, 0] - ox, uv[:, 1] - oy
+                return torch.stack([48 - u if fl else u, v], 1)
+
+            res = _h(apply(uv_b, rox, roy, rfl)) * (f[k].double() @ _h(apply(uv_a, ox, oy, fl)).T).T
+            assert res.sum(1).abs().max() < 1e-6
+
+
+def test_shift_disagreement_is_zero_for_a_convolution_and_sees_an_8px_pattern():
+    """A convolution moves with its input: no disagreement inside the margin. Adding a
+    pattern tied to 8-px cells (what v9 stamps) does not, whatever the shift."""
+    g = torch.Generator().manual_seed(1)
+    images = torch.rand(6, 3, 64, 64, generator=g)
+    (r, *_), shifts, flipped = shifted_pairs(
+        images, images, torch.zeros(6, 3, 3), images, None, 48, True, g
+    )
+    conv = torch.nn.Conv2d(3, 3, 5, padding=2)
+    with torch.no_grad():
+        smooth = conv(r)
+        assert float(shift_disagreement(smooth, shifts, flipped)) < 1e-12
+        yy, xx = torch.meshgrid(torch.arange(48), torch.arange(48), indexing="ij")
+        cells = 0.05 * torch.cos(2 * torch.pi * yy / 8) * torch.cos(2 * torch.pi * xx / 8)
+        assert float(shift_disagreement(smooth + cells, shifts, flipped)) > 1e-4
+    with pytest.raises(ValueError, match="larger than the samples"):
+        shifted_pairs(images, images, torch.zeros(6, 3, 3), images, None, 60, False, g)

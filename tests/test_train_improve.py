@@ -294,3 +294,22 @@ def test_curation_at_a_smaller_generator_size_and_training_on_two_sizes(setup, t
     bad = ImproveTrainConfig(**{**cfg.__dict__, "crop": 48, "out": str(tmp_path / "bad")})
     with pytest.raises(ValueError, match="larger than the smallest curated views"):
         train_improve(bad, progress=False, model_config=SMALL)
+
+
+def test_shift_term_trains_logs_and_asks_for_crops_and_an_even_batch(setup, tmp_path) -> None:
+    """``shift_weight``: each step's batch is half windows, half their moved twins; the log
+    carries the disagreement between them, and settings that cannot make twins are refused."""
+    _, _, curated = setup
+    cfg = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "shift"), steps=2, batch=4,
+                             lpips_weight=0.0, crop=24, shift_weight=10.0, log_every=1,
+                             device="cpu")  # fmt: skip
+    train_improve(cfg, progress=False, model_config=SMALL)
+    log = [json.loads(line) for line in (tmp_path / "shift" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2]
+    # the model starts as the identity, which moves with its input: the twins line up exactly;
+    # one step later it is not, and the term sees it
+    assert log[0]["shift"] == 0.0 and log[1]["shift"] > 0
+    for bad in ({"crop": 0}, {"crop": 16}, {"batch": 3}, {"crop": 32}):
+        wrong = ImproveTrainConfig(**{**cfg.__dict__, **bad, "out": str(tmp_path / "bad")})
+        with pytest.raises(ValueError, match="--shift-weight needs"):
+            train_improve(wrong, progress=False, model_config=SMALL)

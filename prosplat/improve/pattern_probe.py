@@ -43,8 +43,14 @@ def _orbit(angle: float, size: int) -> Camera:
 
 
 @torch.no_grad()
-def probe_changes(improver: ImproveModel, views: int = 64, size: int = 64, seed: int = 0) -> Tensor:
-    """[views,3,size,size]: what ``improver`` adds (enhanced - raw) to the probe views."""
+def probe_changes(
+    improver: ImproveModel | None, views: int = 64, size: int = 64, seed: int = 0
+) -> Tensor:
+    """[views,3,size,size]: what ``improver`` adds (enhanced - raw) to the probe views.
+
+    ``improver=None`` gives the ideal change instead, the sharp view minus the render: what
+    a perfect model would add, and so what the bars must let through (the test checks it).
+    """
     g = torch.Generator().manual_seed(seed)
     changes = []
     for _ in range(views):
@@ -54,12 +60,15 @@ def probe_changes(improver: ImproveModel, views: int = 64, size: int = 64, seed:
         raw = (1 - haze) * blurred + haze * 0.6  # a washed-out render
         angle = 2 * math.pi * float(torch.rand(1, generator=g))
         warp = None
-        if improver.config.warp_input:
+        if improver is None or improver.config.warp_input:
             lin = torch.linspace(-1, 1, size)
             yy, xx = torch.meshgrid(lin, lin, indexing="ij")
             theta = 2 * math.pi * float(torch.rand(1, generator=g))
             valid = (math.cos(theta) * xx + math.sin(theta) * yy > 0).float()
             warp = torch.cat([sharp, valid[None]])
+        if improver is None:
+            changes.append(sharp - raw)
+            continue
         out = enhance(improver, raw, _orbit(angle, size), sharp, _orbit(angle + 0.4, size),
                       alpha=torch.ones(size, size), warp=warp)  # fmt: skip
         if out.shape != raw.shape or not torch.isfinite(out).all():

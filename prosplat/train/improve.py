@@ -25,7 +25,12 @@ from torch import Tensor
 from prosplat.improve.config import preset
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel
-from prosplat.train.augment import augment_samples
+from prosplat.train.augment import (
+    SHIFT_MARGIN,
+    augment_samples,
+    shift_disagreement,
+    shifted_pairs,
+)
 from prosplat.train.common import (
     Dist,
     check_intervals,
@@ -37,6 +42,10 @@ from prosplat.train.common import (
 )
 from prosplat.train.curate import curated_alpha, curated_batch, curated_warp, load_curated
 from prosplat.train.generator import lr_at
+
+#: The largest shift between the two windows of a ``--shift-weight`` pair (px): with 1-7 px
+#: every phase of the VAE's 8-px cells is met.
+SHIFT = 7
 
 
 @dataclass(frozen=True)
@@ -77,6 +86,10 @@ class ImproveTrainConfig:
     # sets curated with the warp; prosplat.improve.warp)
     warp: bool = False
     padding: str = ""  # set the convolutions' padding ("zeros" | "replicate"; "": the model's)
+    # weight of the shift term: half of each batch is the other half's crops moved 1-7 px, and
+    # the two outputs must agree where they overlap (augment.shifted_pairs; needs --crop).
+    # Against a pattern tied to the VAE's 8-px cells (0: off)
+    shift_weight: float = 0.0
 
     def __post_init__(self) -> None:
         check_intervals(self, "log_every", "val_every", "save_every")
@@ -290,8 +303,15 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         raise ValueError(
             f"--crop must be a multiple of {model.config.size_multiple}, got {cfg.crop}"
         )
-    if cfg.crop and (small := min(min(d["render"].shape[-2:]) for d in sets)) < cfg.crop:
+    small = min(min(d["render"].shape[-2:]) for d in sets)
+    if cfg.crop and small < cfg.crop:
         raise ValueError(f"--crop {cfg.crop} is larger than the smallest curated views ({small})")
+    least = 2 * SHIFT_MARGIN + SHIFT + 1  # a window and its twin share pixels inside
+    if cfg.shift_weight and (cfg.crop < least or cfg.batch % 2 or small < cfg.crop + SHIFT):
+        raise ValueError(
+            f"--shift-weight needs --crop of at least {least}, an even --batch and views at "
+            f"least --crop + {SHIFT} px (got crop {cfg.crop}, batch {cfg.batch}, views {small})"
+        )
     if cfg.padding:
         model.set_padding(cfg.padding)
     # the views' size, not the crops': the model learns textures at the scale of whole views
@@ -311,21 +331,30 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             n = data["render"].shape[0]
             step = run.step // len(sets)  # each set walks its own shuffled epochs
             _, idx = step_indices(n, cfg.batch, cfg.seed, step, dist.rank, dist.world_size)
-            index = torch.tensor(idx)
+            index = torch.tensor(idx[: cfg.batch // 2] if cfg.shift_weight else idx)
             raw, ref, fund, gt = curated_batch(data, index, cfg.reference_method, device)
             alpha = curated_alpha(data, index, device) if cfg.alpha else None
             warp = curated_warp(data, index, cfg.reference_method, device) if cfg.warp else None
             if cfg.crop or cfg.flip:
                 # alpha and warp are pixel-aligned with the render: one window, one flip
                 aligned = [x for x in (alpha, warp) if x is not None]
-                raw, ref, fund, gt, stacked = augment_samples(
-                    raw, ref, fund, gt, torch.cat(aligned, 1) if aligned else None, cfg.crop,
-                    cfg.flip, augment_rng,
-                )  # fmt: skip
+                stacked = torch.cat(aligned, 1) if aligned else None
+                if cfg.shift_weight:
+                    (raw, ref, fund, gt, stacked), shifts, flipped = shifted_pairs(
+                        raw, ref, fund, gt, stacked, cfg.crop, cfg.flip, augment_rng, SHIFT
+                    )
+                else:
+                    raw, ref, fund, gt, stacked = augment_samples(
+                        raw, ref, fund, gt, stacked, cfg.crop, cfg.flip, augment_rng
+                    )
                 alpha = stacked[:, :1] if alpha is not None else None
                 warp = stacked[:, -4:] if warp is not None else None
             out = net(raw, ref, fund, alpha, warp)
             loss, parts = enhance_loss(out, gt, lpips_fn, cfg.lpips_weight)
+            if cfg.shift_weight:
+                shift = shift_disagreement(out, shifts, flipped)
+                loss = loss + cfg.shift_weight * shift
+                parts["shift"] = float(shift.detach())
             extra = {}
             if val is not None and (run.step + 1) % cfg.val_every == 0:
                 extra = validate_improver(model, val, cfg.reference_method, device)
