@@ -331,7 +331,8 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             n = data["render"].shape[0]
             step = run.step // len(sets)  # each set walks its own shuffled epochs
             _, idx = step_indices(n, cfg.batch, cfg.seed, step, dist.rank, dist.world_size)
-            index = torch.tensor(idx[: cfg.batch // 2] if cfg.shift_weight else idx)
+            # with the shift term each drawn sample makes two: draw half (per rank)
+            index = torch.tensor(idx[: max(1, len(idx) // 2)] if cfg.shift_weight else idx)
             raw, ref, fund, gt = curated_batch(data, index, cfg.reference_method, device)
             alpha = curated_alpha(data, index, device) if cfg.alpha else None
             warp = curated_warp(data, index, cfg.reference_method, device) if cfg.warp else None
