@@ -14,9 +14,7 @@ import argparse
 import torch
 
 from prosplat.improve.io import DEFAULT_IMPROVE_WEIGHTS, load_improver
-from prosplat.improve.pattern_probe import probe_changes, probe_scores
-
-BARS = {"pattern": 3.0, "lattice8": 1.5, "lattice16": 1.5}
+from prosplat.improve.pattern_probe import PROBE_BARS, probe_changes, probe_scores
 
 
 def main() -> None:
@@ -36,7 +34,7 @@ def main() -> None:
     for path in [None, *paths]:  # None: the ideal change, the floor a perfect model scores
         model = None if path is None else load_improver(path).eval()
         s = probe_scores(probe_changes(model, views=args.views))
-        passes = all(s[k] < bar for k, bar in BARS.items())
+        passes = all(s[k] < bar for k, bar in PROBE_BARS.items())
         print(
             f"| {path or 'ideal (sharp - render)'}{'' if passes else ' (fails)'} | "
             f"{s['mean_change']:.4f} | "

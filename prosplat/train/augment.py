@@ -10,9 +10,10 @@ For pixel maps ``x' = T x`` applied to both images, ``x_ref'^T F' x' = 0`` holds
 ``F' = T^-T F T^-1``.
 
 Crops alone do not stop a stage-2 model from tying a pattern to its own grid: its VAE works
-on 8-px latent cells, and what it adds can depend on where a pixel sits in its cell (v9 adds
-an 8-px lattice to every view: BENCHMARKS). :func:`shifted_pairs` gives the same window twice,
-the second moved by a few pixels, so training can ask for the same answer at both places.
+on 8-px latent cells, and what it adds can depend on where a pixel sits in its cell (v7 and v9
+fill the generator's holes with a grid of such cells: BENCHMARKS "Stage 2 v10").
+:func:`shifted_pairs` gives the same window twice, the second moved by a few pixels, so
+training can ask for the same answer at both places.
 """
 
 from __future__ import annotations
@@ -107,6 +108,11 @@ def augment_samples(
     return _stack(outs, alpha is not None)
 
 
+#: The largest shift between a window and its twin (px): with 1-7 px every phase of the VAE's
+#: 8-px cells is met.
+MAX_SHIFT = 7
+
+
 def shifted_pairs(
     render: Tensor,
     reference: Tensor,
@@ -116,7 +122,7 @@ def shifted_pairs(
     crop: int,
     flip: bool,
     generator: torch.Generator,
-    max_shift: int = 7,
+    max_shift: int = MAX_SHIFT,
 ) -> tuple[tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None], Tensor, Tensor]:
     """Each sample as two ``crop``-px windows, the second ``(dy, dx)`` px further down and
     right (each in ``[0, max_shift]``, not both 0), with one flip and one reference window.

@@ -26,6 +26,7 @@ from prosplat.improve.config import preset
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel
 from prosplat.train.augment import (
+    MAX_SHIFT,
     SHIFT_MARGIN,
     augment_samples,
     shift_disagreement,
@@ -42,10 +43,6 @@ from prosplat.train.common import (
 )
 from prosplat.train.curate import curated_alpha, curated_batch, curated_warp, load_curated
 from prosplat.train.generator import lr_at
-
-#: The largest shift between the two windows of a ``--shift-weight`` pair (px): with 1-7 px
-#: every phase of the VAE's 8-px cells is met.
-SHIFT = 7
 
 
 @dataclass(frozen=True)
@@ -306,11 +303,11 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
     small = min(min(d["render"].shape[-2:]) for d in sets)
     if cfg.crop and small < cfg.crop:
         raise ValueError(f"--crop {cfg.crop} is larger than the smallest curated views ({small})")
-    least = 2 * SHIFT_MARGIN + SHIFT + 1  # a window and its twin share pixels inside
-    if cfg.shift_weight and (cfg.crop < least or cfg.batch % 2 or small < cfg.crop + SHIFT):
+    least = 2 * SHIFT_MARGIN + MAX_SHIFT + 1  # a window and its twin share pixels inside
+    if cfg.shift_weight and (cfg.crop < least or cfg.batch % 2 or small < cfg.crop + MAX_SHIFT):
         raise ValueError(
             f"--shift-weight needs --crop of at least {least}, an even --batch and views at "
-            f"least --crop + {SHIFT} px (got crop {cfg.crop}, batch {cfg.batch}, views {small})"
+            f"least --crop + {MAX_SHIFT} px (got crop {cfg.crop}, batch {cfg.batch}, views {small})"
         )
     if cfg.padding:
         model.set_padding(cfg.padding)
@@ -342,7 +339,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
                 stacked = torch.cat(aligned, 1) if aligned else None
                 if cfg.shift_weight:
                     (raw, ref, fund, gt, stacked), shifts, flipped = shifted_pairs(
-                        raw, ref, fund, gt, stacked, cfg.crop, cfg.flip, augment_rng, SHIFT
+                        raw, ref, fund, gt, stacked, cfg.crop, cfg.flip, augment_rng
                     )
                 else:
                     raw, ref, fund, gt, stacked = augment_samples(
