@@ -23,8 +23,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
+from view_grid import draw_panel, save_figure, spread_scenes  # noqa: E402
 
-from prosplat.data import find_scenes, load_scene  # noqa: E402
+from prosplat.data import load_scene  # noqa: E402
 from prosplat.enhance import render_view  # noqa: E402
 from prosplat.evaluate import scene_at  # noqa: E402
 from prosplat.ladder.geometry import resize_depths  # noqa: E402
@@ -46,9 +47,7 @@ def main() -> None:
     for spec in args.generator or ["shipped="]:
         label, _, path = spec.partition("=")
         models[label] = ProSplat.from_pretrained(path or None, improve=False)
-    folders = find_scenes(args.data)
-    step = max(1, len(folders) // args.scenes)
-    folders = folders[::step][: args.scenes]
+    folders = spread_scenes(args.data, args.scenes)
     cols = ["Blender", "Blender depth"] + [
         f"{lab} {kind}" for lab in models for kind in ("raw", "depth")
     ]
@@ -75,22 +74,11 @@ def main() -> None:
             rel = float(((d - true_depth).abs() / true_depth)[valid].mean())
             panels[f"{label} depth"] = (1 / d.clamp_min(1e-6), f"{label} depth {rel:.2f}")
         for c, name in enumerate(cols):
-            ax = axes[r, c]
             img, title = panels[name]
-            if img.dim() == 3:
-                ax.imshow(img.permute(1, 2, 0).clamp(0, 1).numpy())
-            else:
-                ax.imshow(img.numpy(), cmap="magma", vmin=0, vmax=vmax)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            ax.set_title(title, fontsize=8)
-            if c == 0:
-                ax.set_ylabel(folder.name, fontsize=7)
+            draw_panel(axes[r, c], img, title, folder.name if c == 0 else None,
+                       cmap="magma", vmin=0, vmax=vmax)  # fmt: skip
         print(f"{folder.name} done", flush=True)
-    fig.tight_layout()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=90)
-    print(f"wrote {args.out}")
+    save_figure(fig, args.out)
 
 
 if __name__ == "__main__":

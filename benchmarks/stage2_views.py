@@ -21,8 +21,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
+from view_grid import draw_panel, save_figure, spread_scenes  # noqa: E402
 
-from prosplat.data import find_scenes, load_scene  # noqa: E402
+from prosplat.data import load_scene  # noqa: E402
 from prosplat.data.scene import resize_views  # noqa: E402
 from prosplat.distill import distill_enhanced  # noqa: E402
 from prosplat.enhance import render_view  # noqa: E402
@@ -52,9 +53,7 @@ def main() -> None:
     for spec in args.improve:
         label, _, path = spec.partition("=")
         improvers[label] = load_improver(path)
-    folders = find_scenes(args.data)
-    step = max(1, len(folders) // args.scenes)
-    folders = folders[::step][: args.scenes]
+    folders = spread_scenes(args.data, args.scenes)
     distilled = [f"{label} distilled" for label in improvers] if args.distill_steps else []
     cols = ["Blender", "raw", "warp paste", *improvers, *distilled]
     fig, axes = plt.subplots(len(folders), len(cols), figsize=(2 * len(cols), 2.1 * len(folders)))
@@ -79,20 +78,11 @@ def main() -> None:
                     fitted = distill_enhanced(g, imgs, cams, tcams, imp, steps=args.distill_steps)
                 panels[f"{label} distilled"] = render_view(fitted.gaussians, cam).image
         for c, name in enumerate(cols):
-            ax = axes[r, c]
             img = panels[name].clamp(0, 1)
-            ax.imshow(img.permute(1, 2, 0).numpy())
-            ax.set_xticks([])
-            ax.set_yticks([])
             title = name if name == "Blender" else f"{name} {float(psnr(img, gt)):.1f}"
-            ax.set_title(title, fontsize=8)
-            if c == 0:
-                ax.set_ylabel(folder.name, fontsize=7)
+            draw_panel(axes[r, c], img, title, folder.name if c == 0 else None)
         print(f"{folder.name} done", flush=True)
-    fig.tight_layout()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=90)
-    print(f"wrote {args.out}")
+    save_figure(fig, args.out)
 
 
 if __name__ == "__main__":
