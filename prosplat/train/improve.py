@@ -87,9 +87,15 @@ class ImproveTrainConfig:
     # the two outputs must agree where they overlap (augment.shifted_pairs; needs --crop).
     # Against a pattern tied to the VAE's 8-px cells (0: off)
     shift_weight: float = 0.0
+    # the largest view the saved model runs on directly (ImproveConfig.working_size); -1: the
+    # largest training view, 0: every view at its own size. Larger than the training views
+    # only where the ladder measured it better (BENCHMARKS "Stage 2 v11")
+    working_size: int = -1
 
     def __post_init__(self) -> None:
         check_intervals(self, "log_every", "val_every", "save_every")
+        if self.working_size < -1:
+            raise ValueError(f"--working-size must be -1, 0 or a size, got {self.working_size}")
 
 
 @dataclass(frozen=True)
@@ -313,6 +319,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         model.set_padding(cfg.padding)
     # the views' size, not the crops': the model learns textures at the scale of whole views
     size = max(max(d["render"].shape[-2:]) for d in sets)
+    size = size if cfg.working_size < 0 else cfg.working_size
     model.config = model.config.with_(working_size=size)
     augment_rng = torch.Generator().manual_seed(cfg.seed + 1)
     val = load_curated(cfg.val) if cfg.val and dist.is_main else None
