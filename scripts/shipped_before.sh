@@ -4,5 +4,5 @@
 shipped_before() {
   [ -f "$1" ] && return 0
   mkdir -p "$(dirname "$1")"
-  git show "$3:prosplat/weights/$2" > "$1.part" && mv "$1.part" "$1"
+  git show "$3:prosplat/weights/$2" > "$1.part$$" && mv "$1.part$$" "$1"  # $$: two scripts at once
 }
