@@ -291,7 +291,7 @@ def test_curation_at_a_smaller_generator_size_and_training_on_two_sizes(setup, t
         load_improver(train_improve(cfg, progress=False, model_config=SMALL)).config.working_size
         == 64
     )
-    # --working-size overrides it (256: 2-4x the training views, as v11 ships)
+    # --working-size overrides it (256: 2-4x the training views, as the shipped v10 runs)
     wide = ImproveTrainConfig(**{**cfg.__dict__, "working_size": 256, "out": str(tmp_path / "w")})
     saved = load_improver(train_improve(wide, progress=False, model_config=SMALL))
     assert saved.config.working_size == 256

@@ -89,7 +89,7 @@ class ImproveTrainConfig:
     shift_weight: float = 0.0
     # the largest view the saved model runs on directly (ImproveConfig.working_size); -1: the
     # largest training view, 0: every view at its own size. Larger than the training views
-    # only where the ladder measured it better (BENCHMARKS "Stage 2 v11")
+    # only where the ladder measured it better (BENCHMARKS "Stage 2 v10 at 256 px")
     working_size: int = -1
 
     def __post_init__(self) -> None:
