@@ -3,8 +3,8 @@
 Rows: ``--scenes`` test scenes spread over the folder (``--views`` inputs picked as every
 evaluation picks them, the scene's first target). Columns: Blender's target image and its
 depth at the first input camera, then for each ``--generator LABEL=PATH`` the raw render of
-the target as the pipeline makes it (the generator at its trained size, its Gaussians seen at
-``--size``; black where no Gaussian lands) and the depth it predicts for that first input.
+the target as the pipeline makes it (the generator matching at its trained size, its Gaussians
+at and seen at ``--size``; black where no Gaussian lands) and the depth it predicts for that first input.
 Renders are titled with their PSNR, depth maps with their mean AbsRel; depth shares one
 colour scale per row (inverse depth, near = bright).
 
@@ -41,12 +41,18 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=6, help="spread evenly over the folder")
     ap.add_argument("--generator", action="append", default=[], metavar="LABEL=PATH",
                     help="repeatable (default: the shipped one as 'shipped')")  # fmt: skip
+    ap.add_argument("--low-res-gaussians", action="store_true",
+                    help="also each generator with its Gaussians at the size it matches at "
+                    "(columns 'LABEL low'; ProSplat.full_res_gaussians off)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("out/generator_views.png"))
     args = ap.parse_args()
     models = {}
     for spec in args.generator or ["shipped="]:
         label, _, path = spec.partition("=")
         models[label] = ProSplat.from_pretrained(path or None, improve=False)
+        if args.low_res_gaussians:
+            models[f"{label} low"] = ProSplat.from_pretrained(path or None, improve=False)
+            models[f"{label} low"].full_res_gaussians = False
     folders = spread_scenes(args.data, args.scenes)
     cols = ["Blender", "Blender depth"] + [
         f"{lab} {kind}" for lab in models for kind in ("raw", "depth")

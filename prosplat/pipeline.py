@@ -39,6 +39,11 @@ DEPTHSPLAT_SUFFIXES = (".pth", ".pt", ".ckpt")
 #: at this size by default. ``prosplat demo`` runs at 64 px (``demo.DEMO_SIZE``) to stay fast.
 TRAINED_SIZE = 128
 
+#: :meth:`ProSplat.generate` places Gaussians at most this many times the matching height
+#: (512 px for the shipped weights): a 1080p camera's inputs would otherwise make 2 M
+#: Gaussians per view
+MAX_GAUSSIAN_SCALE = 4
+
 #: near = NEAR_FACTOR · (smallest camera distance) · f / image size (see near_far_from_cameras)
 NEAR_FACTOR = 0.5
 #: far = FAR_FACTOR · max(largest camera distance, near), for rigs that do not converge
@@ -204,6 +209,9 @@ class ProSplat:
         #: the image height the generator was trained at (None: unknown); the pipeline runs
         #: the generator at most this high (:meth:`generator_views`)
         self.trained_size = trained_size
+        #: place the Gaussians at the inputs' own size when the generator matches at a smaller
+        #: one (:meth:`generate`); False: at the matching size, as before 2026-11-24
+        self.full_res_gaussians = True
         self.improver = improver
         if improver is not None:
             improver.to(self.device).eval()
@@ -348,19 +356,65 @@ class ProSplat:
         far: float | None = None,
         *,
         grad: bool = False,
+        match_size: tuple[int, int] | None = None,
     ) -> GeneratorOutput:
         """Run the generator (eval mode) on one scene: ``images [N,3,H,W]`` in [0,1] with one
         :class:`Camera` each. near/far default to :func:`near_far_from_cameras`. No autograd
         graph unless ``grad``. Images that are not float or not in [0, 1] (``uint8``, 0-255)
-        raise ``ValueError`` naming the fix (:func:`prosplat.image_io.check_images`)."""
+        raise ``ValueError`` naming the fix (:func:`prosplat.image_io.check_images`).
+        ``match_size`` (H, W): the generator matches at that size and places its Gaussians at
+        the images' (:meth:`generate`)."""
         imgs, K, w2c, near, far = self._inputs(images, cameras, near, far)
         was_training = self.generator.training
         self.generator.eval()
+        extra = {} if match_size is None else {"match_size": match_size}
         try:
             with torch.set_grad_enabled(grad):
-                return self.generator(imgs, K, w2c, near, far)
+                return self.generator(imgs, K, w2c, near, far, **extra)
         finally:
             self.generator.train(was_training)
+
+    def generate(
+        self,
+        images: Tensor,
+        cameras: Sequence[Camera],
+        near: float | None = None,
+        far: float | None = None,
+        height: int | None = None,
+        *,
+        grad: bool = False,
+    ) -> tuple[GeneratorOutput, list[Camera]]:
+        """The generator as the pipeline runs it on inputs larger than ``height`` (None:
+        :attr:`trained_size`; 0: the inputs' size): returns its output and the cameras its
+        pixel-aligned Gaussians and depth maps belong to.
+
+        With :attr:`full_res_gaussians` (the default; prosplat generators only) the matching
+        runs at ``height`` while the depth refiner and the adapter place one Gaussian per
+        input pixel, with that pixel's colour, at the inputs' size (at most
+        :data:`MAX_GAUSSIAN_SCALE` times ``height``: inputs that are larger, or not multiples
+        of 32, are resized first). Otherwise the inputs are resized to ``height``
+        (:meth:`generator_views`) and the Gaussians come at that size. Why: matching is what
+        does not carry to a size the weights were not trained at, while the Gaussians' colour
+        and footprint gain from the full-size pixels (BENCHMARKS.md, "Gaussians at the inputs'
+        size").
+        """
+        cameras = list(cameras)
+        height = self.trained_size if height is None else height
+        h = images.shape[-2]
+        if not (self.full_res_gaussians and isinstance(self.generator, Generator)) or (
+            not height or height >= h
+        ):
+            gen_images, gen_cameras = self.generator_views(images, cameras, height)
+            out = self.reconstruct_full(gen_images, gen_cameras, near, far, grad=grad)
+            return out, gen_cameras
+        from prosplat.data.scene import resize_views, resized_width
+
+        top = min(h, MAX_GAUSSIAN_SCALE * int(height)) // 32 * 32
+        if (top, resized_width(images.shape[-1], h, top)) != tuple(images.shape[-2:]):
+            images, cameras = resize_views(images, cameras, top)
+        match = (int(height), resized_width(images.shape[-1], images.shape[-2], int(height)))
+        out = self.reconstruct_full(images, cameras, near, far, grad=grad, match_size=match)
+        return out, cameras
 
     def reconstruct(
         self,
@@ -392,8 +446,8 @@ class ProSplat:
         0: the inputs' size).
         """
         if not refine_steps and not refine_seconds:
-            gen_images, gen_cameras = self.generator_views(images, cameras, generator_height)
-            return self.reconstruct_full(gen_images, gen_cameras, near, far, grad=grad).gaussians(0)
+            out, _ = self.generate(images, cameras, near, far, generator_height, grad=grad)
+            return out.gaussians(0)
         return self.reconstruct_refined(
             images,
             cameras,
@@ -451,8 +505,7 @@ class ProSplat:
         from prosplat.budget import prune_pixel_aligned
 
         t0 = time.perf_counter()
-        gen_images, gen_cameras = self.generator_views(images, cameras, generator_height)
-        out = self.reconstruct_full(gen_images, gen_cameras, near, far)
+        out, gen_cameras = self.generate(images, cameras, near, far, generator_height)
         t1 = time.perf_counter()
         depths = out.depths[0].detach()
         g, _, stats = prune_pixel_aligned(

@@ -124,6 +124,50 @@ def test_means_lie_on_their_pixel_rays_view_major(model):
         assert torch.allclose(z.float(), out.depths[0, i], rtol=1e-4)
 
 
+def test_match_size_matches_small_and_places_gaussians_at_full_size(model):
+    """``match_size``: the network up to the refiner runs on the images resized to it, so its
+    inverse depth is the small run's, bilinearly upsampled (inverse depth is affine in the
+    refiner's output); every full-size pixel gets its Gaussian on its own ray, coloured from
+    its own pixel. The full size itself as ``match_size`` changes nothing."""
+    v, w, h = 2, 64, 64
+    cams = rig(v, w, h)
+    images, K, w2c = batch(cams)
+    small = torch.nn.functional.interpolate(
+        images[0], size=(32, 32), mode="bilinear", antialias=True, align_corners=False
+    ).clamp(0, 1)[None]
+    K_small = scale_intrinsics(K, 0.5, 0.5)
+    with torch.no_grad():
+        lo = model(small, K_small, w2c, NEAR, FAR)
+        hi = model(images, K, w2c, NEAR, FAR, match_size=(32, 32))
+        same = model(images, K, w2c, NEAR, FAR, match_size=(h, w))
+        full = model(images, K, w2c, NEAR, FAR)
+    assert hi.means.shape == (1, v * h * w, 3) and hi.depths.shape == (1, v, h, w)
+    up = torch.nn.functional.interpolate(
+        1 / lo.depths[0][:, None], size=(h, w), mode="bilinear", align_corners=False
+    )[:, 0]
+    assert torch.allclose(1 / hi.depths[0], up, rtol=1e-4, atol=1e-6)
+    assert not torch.allclose(hi.depths, full.depths, rtol=1e-2)  # it did not run at 64 px
+    for name in ("means", "sh", "depths"):
+        assert torch.equal(getattr(same, name), getattr(full, name)), name
+    means = hi.means[0].view(v, h, w, 3)
+    for i, cam in enumerate(cams):
+        uv, z = cam.project(means[i].double())
+        assert (uv - cam.pixel_centers(torch.float64)).abs().max() <= SMALL.max_offset_px + 1e-3
+        assert torch.allclose(z.float(), hi.depths[0, i], rtol=1e-4)
+    # colour: the full-size pixel plus a residual; a pixel made brighter gets a brighter Gaussian
+    brighter = images.clone()
+    brighter[0, 0, :, 10, 10] = (brighter[0, 0, :, 10, 10] + 0.5).clamp(max=1)
+    with torch.no_grad():
+        hi2 = model(brighter, K, w2c, NEAR, FAR, match_size=(32, 32))
+    k = 10 * w + 10
+    assert (hi2.sh[0, k, 0] - hi.sh[0, k, 0]).sum() > 0.5 * (
+        rgb_to_sh0(brighter[0, 0, :, 10, 10]) - rgb_to_sh0(images[0, 0, :, 10, 10])
+    ).sum()
+    for bad in ((48, 32), (32, 128), (0, 32)):
+        with pytest.raises(ValueError, match="match_size"):
+            model(images, K, w2c, NEAR, FAR, match_size=bad)
+
+
 # ---- gradients and one optimisation step ---------------------------------------------------
 def render_loss(model: Generator, images, K, w2c, target_cam, target_rgb):
     out = model(images, K, w2c, NEAR, FAR)
@@ -397,6 +441,22 @@ def test_config_round_trip_and_presets():
         GeneratorConfig(feature_channels=30, attention_heads=4)
     assert 0.3e6 <= Generator(TINY).num_parameters() <= 1e6
     assert 10e6 <= Generator(BASE).num_parameters() <= 30e6
+
+
+def test_generate_caps_the_gaussian_size_and_rounds_odd_sizes():
+    """:meth:`ProSplat.generate` places Gaussians at the inputs' size up to
+    MAX_GAUSSIAN_SCALE x the matching height, on a multiple of 32: larger or odd inputs are
+    resized first (so a 1080p camera's inputs do not make millions of Gaussians a view)."""
+    torch.manual_seed(6)
+    m = ProSplat(SMALL, trained_size=32)
+    cap = pipeline.MAX_GAUSSIAN_SCALE * 32
+    for size, expect in ((cap + 32, cap), (100, 96), (64, 64), (32, 32)):
+        cams = rig(2, size, size)
+        images = torch.rand(2, 3, size, size, generator=torch.Generator().manual_seed(size))
+        out, out_cams = m.generate(images, cams, NEAR, FAR)
+        assert out.depths.shape[-2:] == (expect, expect), size
+        assert (out_cams[0].width, out_cams[0].height) == (expect, expect)
+        assert len(out.gaussians(0)) == 2 * expect * expect
 
 
 def test_save_load_round_trip(tmp_path):

@@ -396,15 +396,21 @@ def test_eval_ladder_bad_options_exit_2(data, tmp_path, capsys, extra, message):
 
 
 def test_refine_rows_fit_the_inputs_from_a_smaller_generator_run(data):
-    """``--generator-size 32`` on 64-px views: the generator sees 32-px inputs (a quarter of
-    the Gaussians), its Gaussians render at 64 px, and the refine rows fit them to the
-    64-px inputs, keeping their count and getting closer to the inputs."""
-    ctx = LadderContext({"generator_size": 32, "refine_steps": [30], "improve": False})
-    rungs = {r.name: r for r in build_rungs(["generator", "refine"], ctx)}
-    assert list(rungs) == ["generator", "refine 30"]  # no improvement model: no enhanced row
+    """``--generator-size 32`` on 64-px views: the generator matches on 32-px inputs (with
+    ``--low-res-gaussians``, a quarter of the Gaussians, at 32 px; else one per 64-px pixel),
+    its Gaussians render at 64 px, and the refine rows fit them to the 64-px inputs, keeping
+    their count and getting closer to the inputs."""
+    full = LadderContext({"generator_size": 32, "improve": False})
     scene = load_scene(data / "tabletop_000001")
     idx = pick_inputs(scene, 3)
     inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    assert full.model.full_res_gaussians
+    assert len(build_rungs(["generator"], full)[0].reconstruct(inp)) > 3 * 32 * 32
+    ctx = LadderContext(
+        {"generator_size": 32, "refine_steps": [30], "improve": False, "low_res_gaussians": True}
+    )
+    rungs = {r.name: r for r in build_rungs(["generator", "refine"], ctx)}
+    assert list(rungs) == ["generator", "refine 30"]  # no improvement model: no enhanced row
     torch.manual_seed(0)
     g = rungs["generator"].reconstruct(inp)
     fitted = rungs["refine 30"].reconstruct(inp)

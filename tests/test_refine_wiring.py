@@ -57,9 +57,11 @@ def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
     model, tmp_path_factory
 ):
     """The shipped weights were trained at up to T = 128 px: given 2T-px inputs, the pipeline
-    runs the generator on them resized to T px (a quarter of the Gaussians), the Gaussians
-    render at 2T px, and refinement fits the 2T-px inputs. ``generator_height=0`` runs it at
-    the inputs' size; a saved model keeps its trained size."""
+    matches on them resized to T px and places one Gaussian per 2T-px input pixel
+    (:meth:`ProSplat.generate`; with ``full_res_gaussians`` off, a quarter of them, at T px);
+    the Gaussians render at 2T px, and refinement fits the 2T-px inputs.
+    ``generator_height=0`` runs it all at the inputs' size; a saved model keeps its trained
+    size."""
     t = TRAINED_SIZE
     folder = tmp_path_factory.mktemp("big") / "scene_b"
     write_synthetic_scene(folder, size=2 * t, n_views=5)
@@ -69,10 +71,23 @@ def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
     small, small_cams = model.generator_views(images, cams)
     assert small.shape[-2:] == (t, t) and (small_cams[0].width, small_cams[0].height) == (t, t)
     assert torch.equal(small_cams[0].center, cams[0].center)  # same camera, scaled intrinsics
-    assert len(model.reconstruct(images, cams, near, far)) == 3 * t * t
-    assert len(model.reconstruct(images, cams, near, far, generator_height=0)) == 3 * 4 * t * t
+    out, out_cams = model.generate(images, cams, near, far)
+    assert out.depths.shape[-2:] == (2 * t, 2 * t) and out_cams == cams
+    matched = model.reconstruct_full(small, small_cams, near, far).depths[0]
+    up = torch.nn.functional.interpolate(1 / matched[:, None], size=(2 * t, 2 * t), mode="bilinear")
+    assert torch.allclose(1 / out.depths[0], up[:, 0], rtol=1e-4)  # matched at T px
+    assert len(model.reconstruct(images, cams, near, far)) == 3 * 4 * t * t
+    native = model.reconstruct(images, cams, near, far, generator_height=0)
+    assert len(native) == 3 * 4 * t * t and not torch.allclose(native.means, out.means[0])
     res = model.reconstruct_refined(images, cams, near, far, steps=3)
-    assert res.stats.pruned_from == 3 * t * t
+    assert res.stats.pruned_from == 3 * 4 * t * t
+    model.full_res_gaussians = False
+    try:
+        low, low_cams = model.generate(images, cams, near, far)
+        assert low.depths.shape[-2:] == (t, t) and low_cams[0].height == t
+        assert len(model.reconstruct(images, cams, near, far)) == 3 * t * t
+    finally:
+        model.full_res_gaussians = True
     from prosplat.render import render
 
     assert render(res.gaussians, cams[0]).rgb.shape[-2:] == (2 * t, 2 * t)

@@ -137,12 +137,18 @@ def load_scene(folder: str | Path, load_depth: bool = True) -> SceneData:
     )
 
 
+def resized_width(width: int, height: int, size: int) -> int:
+    """The width an image ``width`` x ``height`` gets resized to ``size`` px high: the aspect
+    kept, rounded to a multiple of 32 (the generator's stride)."""
+    return max(32, round(width * size / height / 32) * 32)
+
+
 def resize_views(images: Tensor, cameras: list[Camera], size: int) -> tuple[Tensor, list[Camera]]:
     """images [V,3,H,W] -> [V,3,size,W'] (antialiased bilinear, as ``reference_at``) with their
     cameras resized to match; W' keeps the aspect ratio, rounded to a multiple of 32 (the
     generator's stride). Used to run models at another resolution than the data's."""
     h, w = images.shape[-2:]
-    width = max(32, round(w * size / h / 32) * 32)
+    width = resized_width(w, h, size)
     if (h, w) == (size, width):
         return images, cameras
     out = F.interpolate(

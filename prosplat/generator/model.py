@@ -9,6 +9,7 @@ upsampled to full resolution, and an adapter turns every pixel into a Gaussian o
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from prosplat.generator.adapter import GaussianAdapter
@@ -174,25 +175,67 @@ class Generator(nn.Module):
         candidates = inverse_depth_candidates(near, far, self.config.num_depth_candidates)  # [B,D]
         return plane_sweep_cost_volume(feats, K_feat, w2c, candidates, neighbours)
 
+    def _match_images(self, x: Tensor, match_size: tuple[int, int]) -> Tensor:
+        """x [B,V,3,H,W] -> [B,V,3,Hm,Wm], antialiased bilinear (as :func:`resize_views`)."""
+        hm, wm = (int(s) for s in match_size)
+        h, w = x.shape[-2:]
+        if hm % SIZE_MULTIPLE or wm % SIZE_MULTIPLE or not (0 < hm <= h and 0 < wm <= w):
+            raise ValueError(
+                f"Generator: match_size {wm}x{hm} must be multiples of {SIZE_MULTIPLE} no larger "
+                f"than the images ({w}x{h})"
+            )
+        if (hm, wm) == (h, w):
+            return x
+        b, v = x.shape[:2]
+        xm = F.interpolate(
+            x.flatten(0, 1), size=(hm, wm), mode="bilinear", antialias=True, align_corners=False
+        )
+        return xm.clamp(-1, 1).view(b, v, 3, hm, wm)
+
     # ---- forward ----------------------------------------------------------------------------
-    def forward(self, images: Tensor, K: Tensor, w2c: Tensor, near, far) -> GeneratorOutput:
+    def forward(
+        self,
+        images: Tensor,
+        K: Tensor,
+        w2c: Tensor,
+        near,
+        far,
+        match_size: tuple[int, int] | None = None,
+    ) -> GeneratorOutput:
+        """``match_size (Hm, Wm)``, multiples of 32 no larger than the images: the network up
+        to the depth refiner sees the images resized to it (antialiased); its per-pixel maps
+        (depth, confidence, features) are then upsampled bilinearly to the images' size, where
+        the adapter (1x1 convolutions) gives every input pixel its Gaussian with that pixel's
+        own colour and footprint. Why: what a model trained at one size does not carry to
+        another is its matching (the cost volume's disparities and the U-Net's receptive field
+        are in pixels), while the colour and the footprint gain from the full-size pixels
+        (BENCHMARKS.md, "Gaussians at the inputs' size": running the refiner at the full size
+        instead was worse than both). None: everything at the images' size."""
         images, K, w2c, near, far = self._validate(images, K, w2c, near, far)
         cfg = self.config
         b, v, _, h, w = images.shape
 
         x = images * 2 - 1  # [B,V,3,H,W] in [-1,1]
-        feats, fine = self.encoder(x)  # [B,V,C,h/4,w/4] multi-view, [B,V,Cf,h/2,w/2] or None
-        mono = self.monocular(x.flatten(0, 1))  # [BV,Cm,h/4,w/4]
+        xm = x if match_size is None else self._match_images(x, match_size)  # [B,V,3,Hm,Wm]
+        feats, fine = self.encoder(xm)  # [B,V,C,Hm/4,Wm/4] multi-view, [B,V,Cf,Hm/2,Wm/2] / None
+        mono = self.monocular(xm.flatten(0, 1))  # [BV,Cm,Hm/4,Wm/4]
 
-        cost = self.cost_volume(feats, K, w2c, near, far, (h, w))  # [B,V,D,h/4,w/4]
+        cost = self.cost_volume(feats, K, w2c, near, far, (h, w))  # [B,V,D,Hm/4,Wm/4]
         fine_cost = None
         if fine is not None:
             fine_cost = self.cost_volume(fine, K, w2c, near, far, (h, w)).flatten(0, 1)
 
         t, conf, hidden = self.depth_head(
             cost.flatten(0, 1), mono, feats.flatten(0, 1), fine_cost
-        )  # [BV,1,h/4,w/4] x2, [BV,U0,h/4,w/4]
-        t, conf, rfeat = self.refiner(x.flatten(0, 1), t, conf, hidden)  # [BV,1,H,W] x2, [BV,R,H,W]
+        )  # [BV,1,Hm/4,Wm/4] x2, [BV,U0,Hm/4,Wm/4]
+        t, conf, rfeat = self.refiner(
+            xm.flatten(0, 1), t, conf, hidden
+        )  # [BV,1,Hm,Wm] x2, [BV,R,Hm,Wm]
+        if match_size is not None and (h, w) != tuple(t.shape[-2:]):  # to the inputs' size
+            maps = F.interpolate(
+                torch.cat([t, conf, rfeat], 1), size=(h, w), mode="bilinear", align_corners=False
+            )  # [BV,2+R,H,W]
+            t, conf, rfeat = maps[:, :1], maps[:, 1:2], maps[:, 2:]
 
         inv_near = (1.0 / near).repeat_interleave(v)[:, None, None]  # [BV,1,1]
         inv_far = (1.0 / far).repeat_interleave(v)[:, None, None]

@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run the generator at most this high (px, a multiple of 32; default: "
                         "the size its weights were trained at, 64 for the shipped ones; 0: the "
                         "evaluation size); its Gaussians render at the evaluation size")  # fmt: skip
+    parser.add_argument("--low-res-gaussians", action="store_true",
+                        help="the generator's Gaussians at the size it runs at, not at the "
+                        "evaluation size (the pipeline before 2026-11-24; ProSplat.generate)")  # fmt: skip
     parser.add_argument("--improve", default=None,
                         help="improvement-model checkpoint (default shipped)")  # fmt: skip
     parser.add_argument("--compare-improve", action="append", default=[], metavar="LABEL=PATH",
@@ -124,6 +127,8 @@ def command(args: argparse.Namespace) -> str:
         parts += ["--compare-improve", spec]
     if args.bf16:
         parts.append("--bf16")
+    if getattr(args, "low_res_gaussians", False):
+        parts.append("--low-res-gaussians")
     if args.resample != "targets":
         parts += ["--resample", args.resample]
     return " ".join(parts + ["--out", str(args.out)])

@@ -109,6 +109,7 @@ class LadderContext:
             self._model = ProSplat.from_pretrained(
                 self.options.get("generator"), improve=self.options.get("improve")
             )
+            self._model.full_res_gaussians = not self.options.get("low_res_gaussians")
         return self._model
 
     def improver(self, rung: str):

@@ -73,10 +73,9 @@ def curate_scene(
                 depths=input_depths,
             ).gaussians  # fmt: skip
         else:  # the generator's every pixel-aligned Gaussian, unpruned
-            gen_images, gen_cams = model.generator_views(images, cams, generator_height)
-            full = model.reconstruct_full(gen_images, gen_cams, near, far)
+            full, _ = model.generate(images, cams, near, far, generator_height)
             gaussians = full.gaussians(0)
-            same_size = gen_images.shape[-2:] == images.shape[-2:]
+            same_size = full.depths.shape[-2:] == images.shape[-2:]
             input_depths = full.depths[0] if same_size else None  # MORI needs input-size maps
         ref_depths: dict[int, Tensor] = {}  # input j -> the Gaussians' depth there [H,W]
         for t in scene.target_indices:
