@@ -163,9 +163,10 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     )  # fmt: skip
     max_input_size: IntProperty(
         name="Input Size", default=runtime.Defaults.max_input_size, min=32, soft_max=1024,
-        description="Long side (pixels) input images are scaled to: the size refinement fits "
-        "and stage 2's references come at. The generator itself runs at the size its weights "
-        "were trained at (128 px high for the shipped ones) when that is smaller",
+        description="Long side (pixels) input images are scaled to: the size the Gaussians "
+        "are made at (one per input pixel, up to 4x the generator's size), refinement fits and "
+        "stage 2's references come at. The generator matches the views at the size its "
+        "weights were trained at (128 px high for the shipped ones) when that is smaller",
     )  # fmt: skip
     python_path: StringProperty(
         name="External Python", subtype="FILE_PATH",

@@ -10,7 +10,12 @@ from prosplat.camera import Camera
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.model import ImproveModel
-from prosplat.train.augment import augment_samples, shift_disagreement, shifted_pairs
+from prosplat.train.augment import (
+    augment_samples,
+    shift_disagreement,
+    shifted_pairs,
+    subpixel_translate,
+)
 
 
 def _pair() -> tuple[Camera, Camera, torch.Tensor]:
@@ -192,3 +197,21 @@ def test_shift_disagreement_is_zero_for_a_convolution_and_sees_an_8px_pattern():
         assert float(shift_disagreement(smooth + cells, shifts, flipped)) > 1e-4
     with pytest.raises(ValueError, match="larger than the samples"):
         shifted_pairs(images, images, torch.zeros(6, 3, 3), images, None, 60, False, g)
+
+
+def test_subpixel_translate_is_exact_on_a_ramp_and_whole_pixels():
+    """Pixel p of the result is the input at p + delta: exact for a linear ramp (bilinear
+    interpolation reproduces it) away from the repeated edge, a plain shift for whole pixels,
+    and the identity for no motion."""
+    h, w = 12, 16
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float64),
+                            torch.arange(w, dtype=torch.float64), indexing="ij")  # fmt: skip
+    ramp = (0.3 * ys + 0.7 * xs)[None, None].expand(2, 3, h, w)  # [2,3,H,W]
+    delta = torch.tensor([[0.25, -0.4], [-0.5, 0.1]], dtype=torch.float64)
+    out = subpixel_translate(ramp, delta)
+    want = ramp + (0.3 * delta[:, 0] + 0.7 * delta[:, 1])[:, None, None, None]
+    assert torch.allclose(out[..., 1:-1, 1:-1], want[..., 1:-1, 1:-1], atol=1e-9)
+    img = torch.rand(1, 3, h, w, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    moved = subpixel_translate(img, torch.tensor([[1.0, 2.0]], dtype=torch.float64))
+    assert torch.allclose(moved[..., : h - 1, : w - 2], img[..., 1:, 2:], atol=1e-9)
+    assert torch.allclose(subpixel_translate(img, torch.zeros(1, 2, dtype=torch.float64)), img)

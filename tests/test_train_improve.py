@@ -319,3 +319,13 @@ def test_shift_term_trains_logs_and_asks_for_crops_and_an_even_batch(setup, tmp_
         wrong = ImproveTrainConfig(**{**cfg.__dict__, **bad, "out": str(tmp_path / "bad")})
         with pytest.raises(ValueError, match="--shift-weight needs"):
             train_improve(wrong, progress=False, model_config=SMALL)
+    # --subpixel-shift: the twins are moved by a fraction of a pixel too; the identity still
+    # lines up with them (the first outputs are resampled the same way), one step later not
+    sub = ImproveTrainConfig(
+        **{**cfg.__dict__, "subpixel_shift": True, "out": str(tmp_path / "sub")}
+    )
+    train_improve(sub, progress=False, model_config=SMALL)
+    log = [json.loads(line) for line in (tmp_path / "sub" / "log.jsonl").read_text().splitlines()]
+    assert log[0]["shift"] < 1e-10 < log[1]["shift"]
+    with pytest.raises(ValueError, match="--subpixel-shift needs --shift-weight"):
+        ImproveTrainConfig(**{**cfg.__dict__, "shift_weight": 0.0, "subpixel_shift": True})

@@ -19,6 +19,7 @@ training can ask for the same answer at both places.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 
@@ -151,6 +152,26 @@ def shifted_pairs(
         flips.append(flipped)
     pairs = _stack(firsts + seconds, alpha is not None)
     return pairs, torch.tensor(shifts, dtype=torch.long), torch.tensor(flips)
+
+
+def subpixel_translate(x: Tensor, delta: Tensor) -> Tensor:
+    """``x [B,C,H,W]`` resampled (bilinear, edges repeated) so that pixel ``p`` of the result is
+    ``x`` at ``p + delta[b]`` (``delta [B,2]``: dy, dx in pixels, fractional): what a camera
+    moved by a fraction of a pixel would see. Used to make the shift term's twins differ by
+    a sub-pixel motion as well (``ImproveTrainConfig.subpixel_shift``): enhancing must not
+    invent detail that jumps when the render is resampled, which is what flickers along a
+    camera path."""
+    b, _, h, w = x.shape
+    ys = torch.arange(h, dtype=x.dtype, device=x.device)[None, :, None] + delta[:, :1, None]
+    xs = torch.arange(w, dtype=x.dtype, device=x.device)[None, None, :] + delta[:, 1:, None]
+    grid = torch.stack(  # [B,H,W,2] in grid_sample's (x, y), align_corners=True coordinates
+        [
+            (2 * xs / max(w - 1, 1) - 1).expand(b, h, w),
+            (2 * ys / max(h - 1, 1) - 1).expand(b, h, w),
+        ],
+        dim=-1,
+    )
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=True)
 
 
 #: Pixels this close to a window's edge are left out of :func:`shift_disagreement`: the

@@ -31,6 +31,7 @@ from prosplat.train.augment import (
     augment_samples,
     shift_disagreement,
     shifted_pairs,
+    subpixel_translate,
 )
 from prosplat.train.common import (
     Dist,
@@ -87,6 +88,11 @@ class ImproveTrainConfig:
     # the two outputs must agree where they overlap (augment.shifted_pairs; needs --crop).
     # Against a pattern tied to the VAE's 8-px cells (0: off)
     shift_weight: float = 0.0
+    # the shift term's twins also moved by a random fraction of a pixel (their render, alpha
+    # and warp resampled; augment.subpixel_translate), the first outputs compared after the
+    # same resampling: against detail that jumps when the render is resampled, i.e. flicker
+    # along a camera path (needs --shift-weight)
+    subpixel_shift: bool = False
     # the largest view the saved model runs on directly (ImproveConfig.working_size); -1: the
     # largest training view, 0: every view at its own size. Larger than the training views
     # only where the ladder measured it better (BENCHMARKS "Stage 2 v10 at 256 px")
@@ -94,6 +100,8 @@ class ImproveTrainConfig:
 
     def __post_init__(self) -> None:
         check_intervals(self, "log_every", "val_every", "save_every")
+        if self.subpixel_shift and not self.shift_weight:
+            raise ValueError("--subpixel-shift needs --shift-weight (it changes the shift term)")
         if self.working_size < -1:
             raise ValueError(f"--working-size must be -1, 0 or a size, got {self.working_size}")
 
@@ -352,12 +360,24 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
                     raw, ref, fund, gt, stacked = augment_samples(
                         raw, ref, fund, gt, stacked, cfg.crop, cfg.flip, augment_rng
                     )
+                if cfg.subpixel_shift:  # the twins: the second half of the batch
+                    half = raw.shape[0] // 2
+                    delta = torch.rand(half, 2, generator=augment_rng) - 0.5  # [B/2,2] px
+                    delta = delta.to(device=raw.device, dtype=raw.dtype)
+                    raw = torch.cat([raw[:half], subpixel_translate(raw[half:], delta)])
+                    gt = torch.cat([gt[:half], subpixel_translate(gt[half:], delta)])
+                    if stacked is not None:
+                        moved = subpixel_translate(stacked[half:], delta)
+                        stacked = torch.cat([stacked[:half], moved])
                 alpha = stacked[:, :1] if alpha is not None else None
                 warp = stacked[:, -4:] if warp is not None else None
             out = net(raw, ref, fund, alpha, warp)
             loss, parts = enhance_loss(out, gt, lpips_fn, cfg.lpips_weight)
             if cfg.shift_weight:
-                shift = shift_disagreement(out, shifts, flipped)
+                compared = out
+                if cfg.subpixel_shift:  # first outputs moved as their twins' inputs were
+                    compared = torch.cat([subpixel_translate(out[:half], delta), out[half:]])
+                shift = shift_disagreement(compared, shifts, flipped)
                 loss = loss + cfg.shift_weight * shift
                 parts["shift"] = float(shift.detach())
             extra = {}
