@@ -3,7 +3,9 @@
 # 13's 64- and 128-px LPIPS bars but flickered 1.29x the raw renders) and the shift term's
 # twins moved by a random fraction of a pixel as well (`--subpixel-shift`): enhancing must
 # not invent detail that jumps when the render is resampled, which is what a camera path
-# shows. SUBPIXEL=0 runs the same without it, the control.
+# shows. SUBPIXEL=0 runs the same without it, the control. Measured, not shipped
+# (BENCHMARKS "Stage 2: a sub-pixel flicker term"): at SHIFT=10 flicker 1.29x (control 1.32x)
+# with LPIPS 0.171 / 0.281 / 0.355; at SHIFT=200 flicker 1.18x but every figure below v10's.
 #   1. data/train128: the training scenes (scripts/render_v2_data.sh train ROUNDS; the
 #      scenes rendered so far are used, however many);
 #   2. raw64 (2/3/4/6 inputs) and raw128 (2/4) curated with the shipped generator (v5, at
@@ -15,7 +17,8 @@
 # Resumable: finished sets are kept and re-running continues the training run.
 #   scripts/train_stage2_v12.sh [STEPS]   (default 2000; LPIPS= the LPIPS weight, default 0.5;
 #   SHIFT= the shift weight, default 10; SUBPIXEL=0 for the control; INIT= the starting stage
-#   2, default v10 from git history; SETS= the curated sets' folder; OUT= the run folder)
+#   2, default v10 from git history; SETS= the curated sets' folder; OUT= the run folder;
+#   USE256=0 leaves raw256 out)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -30,7 +33,7 @@ GEN_SIZE=128 scripts/curate_stage2_sets.sh "$SETS" raw64 &
 GEN_SIZE=128 scripts/curate_stage2_sets.sh "$SETS" raw128
 wait
 DATA_SETS="$SETS/raw64.safetensors,$SETS/raw128.safetensors"
-if [ -d data/train256 ]; then
+if [ "${USE256:-1}" = 1 ] && [ -d data/train256 ]; then
   [ -f "$SETS/raw256.safetensors" ] || OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train curate \
     --data data/train256 --out "$SETS/raw256.safetensors" --views 2,4 --size 256 \
     --generator-size 128 --refine-steps 0
