@@ -164,7 +164,7 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     max_input_size: IntProperty(
         name="Input Size", default=runtime.Defaults.max_input_size, min=32, soft_max=1024,
         description="Long side (pixels) input images are scaled to: the size the Gaussians "
-        "are made at (one per input pixel, up to 4x the generator's size), refinement fits and "
+        "are made at (one per input pixel, up to 2x the generator's size), refinement fits and "
         "stage 2's references come at. The generator matches the views at the size its "
         "weights were trained at (128 px high for the shipped ones) when that is smaller",
     )  # fmt: skip

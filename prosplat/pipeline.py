@@ -40,9 +40,9 @@ DEPTHSPLAT_SUFFIXES = (".pth", ".pt", ".ckpt")
 TRAINED_SIZE = 128
 
 #: :meth:`ProSplat.generate` places Gaussians at most this many times the matching height
-#: (512 px for the shipped weights): a 1080p camera's inputs would otherwise make 2 M
-#: Gaussians per view
-MAX_GAUSSIAN_SCALE = 4
+#: (256 px for the shipped weights): 2x is the measured case (BENCHMARKS.md, "Gaussians at
+#: the inputs' size"), and a 1080p camera's inputs would otherwise make 2 M Gaussians a view
+MAX_GAUSSIAN_SCALE = 2
 
 #: near = NEAR_FACTOR · (smallest camera distance) · f / image size (see near_far_from_cameras)
 NEAR_FACTOR = 0.5
@@ -388,11 +388,12 @@ class ProSplat:
         :attr:`trained_size`; 0: the inputs' size): returns its output and the cameras its
         pixel-aligned Gaussians and depth maps belong to.
 
-        With :attr:`full_res_gaussians` (the default; prosplat generators only) the matching
-        runs at ``height`` while the depth refiner and the adapter place one Gaussian per
-        input pixel, with that pixel's colour, at the inputs' size (at most
-        :data:`MAX_GAUSSIAN_SCALE` times ``height``: inputs that are larger, or not multiples
-        of 32, are resized first). Otherwise the inputs are resized to ``height``
+        With :attr:`full_res_gaussians` (the default; prosplat generators only) the network
+        runs at ``height`` up to its depth refiner, whose depth and features are upsampled to
+        the inputs' size, where the adapter places one Gaussian per input pixel with that
+        pixel's colour (at most :data:`MAX_GAUSSIAN_SCALE` times ``height``: inputs that are
+        larger, or not multiples of 32, are resized first; refinement still fits the inputs
+        as given). Otherwise the inputs are resized to ``height``
         (:meth:`generator_views`) and the Gaussians come at that size. Why: matching is what
         does not carry to a size the weights were not trained at, while the Gaussians' colour
         and footprint gain from the full-size pixels (BENCHMARKS.md, "Gaussians at the inputs'

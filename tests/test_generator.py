@@ -448,8 +448,9 @@ def test_generate_caps_the_gaussian_size_and_rounds_odd_sizes():
     MAX_GAUSSIAN_SCALE x the matching height, on a multiple of 32: larger or odd inputs are
     resized first (so a 1080p camera's inputs do not make millions of Gaussians a view)."""
     torch.manual_seed(6)
-    m = ProSplat(SMALL, trained_size=32)
-    cap = pipeline.MAX_GAUSSIAN_SCALE * 32
+    m = ProSplat(SMALL, trained_size=64)
+    cap = pipeline.MAX_GAUSSIAN_SCALE * 64
+    assert cap >= 128
     for size, expect in ((cap + 32, cap), (100, 96), (64, 64), (32, 32)):
         cams = rig(2, size, size)
         images = torch.rand(2, 3, size, size, generator=torch.Generator().manual_seed(size))
