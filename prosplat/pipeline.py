@@ -411,8 +411,7 @@ class ProSplat:
         from prosplat.data.scene import resize_views, resized_width
 
         top = min(h, MAX_GAUSSIAN_SCALE * int(height)) // 32 * 32
-        if (top, resized_width(images.shape[-1], h, top)) != tuple(images.shape[-2:]):
-            images, cameras = resize_views(images, cameras, top)
+        images, cameras = resize_views(images, cameras, top)  # unchanged when already there
         match = (int(height), resized_width(images.shape[-1], images.shape[-2], int(height)))
         out = self.reconstruct_full(images, cameras, near, far, grad=grad, match_size=match)
         return out, cameras

@@ -231,7 +231,7 @@ class Generator(nn.Module):
         t, conf, rfeat = self.refiner(
             xm.flatten(0, 1), t, conf, hidden
         )  # [BV,1,Hm,Wm] x2, [BV,R,Hm,Wm]
-        if match_size is not None and (h, w) != tuple(t.shape[-2:]):  # to the inputs' size
+        if tuple(t.shape[-2:]) != (h, w):  # matched smaller: to the inputs' size
             maps = F.interpolate(
                 torch.cat([t, conf, rfeat], 1), size=(h, w), mode="bilinear", align_corners=False
             )  # [BV,2+R,H,W]
