@@ -1,4 +1,4 @@
-"""The stage-2 subcommands: ``prosplat train curate|improve|joint`` and ``prosplat eval improve``.
+"""The stage-2 subcommands: ``prosplat train curate|improve|joint|blend`` and ``prosplat eval improve``.
 
 Kept apart from :mod:`prosplat.cli` so each file stays small; ``cli.build_parser`` calls
 :func:`add_train_parsers` and :func:`add_eval_parser`.
@@ -66,6 +66,18 @@ def cmd_train_joint(args: argparse.Namespace) -> int:
     cfg = JointTrainConfig(**{f.name: getattr(args, f.name) for f in fields(JointTrainConfig)})
     gen, imp = train_joint(cfg)
     print(f"generator: {gen.resolve()}\nimprovement model: {imp.resolve()}")
+    return 0
+
+
+def cmd_blend(args: argparse.Namespace) -> int:
+    from prosplat.train.blend import blend_files
+
+    try:
+        path = blend_files(args.a, args.b, args.weight, args.out, overwrite=args.overwrite)
+    except (ValueError, FileExistsError) as e:
+        print(f"prosplat train blend: {e}", file=sys.stderr)
+        return 2
+    print(f"blended improvement model: {path.resolve()}")
     return 0
 
 
@@ -176,6 +188,20 @@ def add_train_parsers(train_sub) -> None:
         tj.add_argument(f"--{name}", required=True)
     _add_config_args(tj, JointTrainConfig, {"data", "out", "generator", "improver"})
     tj.set_defaults(func=cmd_train_joint)
+
+    bl = train_sub.add_parser(
+        "blend",
+        help="interpolate the weights of two fine-tunes of one improvement model",
+        description="Write (1 - W) * A + W * B, weight by weight, for two improvement models "
+        "with the same architecture (fine-tunes from the same start; prosplat.train.blend): "
+        "a trade between them, e.g. LPIPS against flicker, set without training.",
+    )
+    bl.add_argument("a", help="improvement-model checkpoint A (its working size is kept)")
+    bl.add_argument("b", help="improvement-model checkpoint B")
+    bl.add_argument("--weight", type=float, required=True, help="B's share, in [0, 1]")
+    bl.add_argument("--out", required=True, help="checkpoint to write (.safetensors)")
+    bl.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    bl.set_defaults(func=cmd_blend)
 
 
 def add_eval_parser(ev_sub) -> None:
