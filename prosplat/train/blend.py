@@ -6,7 +6,8 @@ Two fine-tunes that start from the same weights stay in one basin of the loss, s
 weights between them are models too ("model soups", Wortsman et al. 2022), and measured here
 they land on the good side of the straight line between the two: the halfway blend of v10
 and its LPIPS-0.5 fine-tune has a better PSNR than both. A blend costs no training, so the
-trade can be set after the fact, by measurement.
+trade can be set after the fact, by measurement (the shipped v13 is one: BENCHMARKS
+"Stage 2 v13").
 """
 
 from __future__ import annotations
