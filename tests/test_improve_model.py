@@ -7,6 +7,7 @@ import math
 
 import pytest
 import torch
+from improve_configs import SMALL
 
 from prosplat import ProSplat
 from prosplat.camera import Camera
@@ -16,14 +17,6 @@ from prosplat.improve.config import TINY, ImproveConfig
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel, build_unet, build_vae
-
-SMALL = ImproveConfig(
-    vae_channels=(16, 16),
-    vae_groups=8,
-    unet_channels=(16, 16, 16),
-    unet_groups=8,
-    cross_attention_dim=16,
-)
 
 
 def _perturb(model: torch.nn.Module, std: float = 0.05) -> None:

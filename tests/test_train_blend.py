@@ -4,20 +4,13 @@ from __future__ import annotations
 
 import pytest
 import torch
+from improve_configs import SMALL
 
 from prosplat.cli import main
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel
 from prosplat.train.blend import blend_improvers
-
-SMALL = ImproveConfig(
-    vae_channels=(16, 16),
-    vae_groups=8,
-    unet_channels=(16, 16, 16),
-    unet_groups=8,
-    cross_attention_dim=16,
-)
 
 
 def _pair(config: ImproveConfig = SMALL) -> tuple[ImproveModel, ImproveModel]:

@@ -6,12 +6,12 @@ import json
 
 import pytest
 import torch
+from improve_configs import SMALL
 from synthetic_scenes import write_synthetic_scene
 
 from prosplat import ProSplat
 from prosplat.checkpoints import write_checkpoint
 from prosplat.generator import GeneratorConfig
-from prosplat.improve.config import ImproveConfig
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel
 from prosplat.train.curate import curate, curated_batch, load_curated
@@ -23,13 +23,6 @@ from prosplat.train.improve import (
     train_joint,
 )
 
-SMALL = ImproveConfig(
-    vae_channels=(16, 16),
-    vae_groups=8,
-    unet_channels=(16, 16, 16),
-    unet_groups=8,
-    cross_attention_dim=16,
-)
 GEN = GeneratorConfig(feature_channels=16, num_depth_candidates=8, attention_layers=1,
                       mono_channels=8, mono_blocks=1, unet_channels=(8, 8, 8), refine_channels=8)  # fmt: skip
 
