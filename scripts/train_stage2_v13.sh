@@ -22,8 +22,8 @@ OUT=${OUT:-runs/s2v13}
 . scripts/shipped_before.sh
 shipped_before "$OUT/v10.safetensors" improve_tiny.safetensors 028c321  # stage 2 v10
 WORKERS=1 scripts/render_v2_data.sh train 4
-[ -d data/train256 ] || $P scenes render --seed 10000 --count 33 --out data/train256 --size 256 \
-  --inputs 4 --targets 8 --samples 8 --denoise --workers 1
+$P scenes render --seed 10000 --count 33 --out data/train256 --size 256 --inputs 4 \
+  --targets 8 --samples 8 --denoise --workers 1  # skips finished scenes
 LPIPS=1.0 INIT="$OUT/v10.safetensors" SETS="$OUT/sets" OUT="$OUT/lp1" \
   scripts/train_stage2_v12.sh 2000
 [ -f "$OUT/improve_v13.safetensors" ] || $P train blend "$OUT/v10.safetensors" \
