@@ -127,7 +127,7 @@ def command(args: argparse.Namespace) -> str:
         parts += ["--compare-improve", spec]
     if args.bf16:
         parts.append("--bf16")
-    if getattr(args, "low_res_gaussians", False):
+    if args.low_res_gaussians:
         parts.append("--low-res-gaussians")
     if args.resample != "targets":
         parts += ["--resample", args.resample]

@@ -28,7 +28,8 @@ def blend_improvers(a: ImproveModel, b: ImproveModel, weight: float) -> ImproveM
         raise ValueError(f"blend weight must be in [0, 1], got {weight}")
     ca, cb = a.config, b.config.with_(working_size=a.config.working_size)
     if ca != cb:
-        differ = sorted(k for k, v in ca.to_dict().items() if cb.to_dict()[k] != v)
+        da, db = ca.to_dict(), cb.to_dict()
+        differ = sorted(k for k in da if da[k] != db[k])
         raise ValueError(f"the two improvement models have different configs ({differ})")
     sa, sb = a.state_dict(), b.state_dict()
     blended = {
