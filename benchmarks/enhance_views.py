@@ -272,7 +272,11 @@ def main(argv: list[str] | None = None) -> int:
     if inputs:
         text += "\n\nRe-rendered input cameras (PSNR / LPIPS)\n\n" + summary(inputs, variants)
         text = text[: text.rindex("\n\nGuard sweep")]  # the sweep is for targets
-    if flicker_rows:
+    if flicker_rows:  # per scene too: the bar (1.2x) needs more than the table's 3 decimals
+        with open(args.out / "flicker.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(flicker_rows[0]))
+            w.writeheader()
+            w.writerows(flicker_rows)
         text += "\n\nFlicker along a path between two targets (prosplat.flicker)\n\n"
         text += "| size | model | scenes | raw | enhanced | ratio (median of scenes) |\n"
         text += "|---|---|---|---|---|---|\n"
@@ -284,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
                 med = ratios[len(ratios) // 2] if ratios else math.nan
                 text += (
                     f"| {size} | {label} | {len(fr)} | {_mean(r['raw'] for r in fr):.4f} | "
-                    f"{_mean(r[label] for r in fr):.4f} | {med:.2f} |\n"
+                    f"{_mean(r[label] for r in fr):.4f} | {med:.3f} |\n"
                 )
     (args.out / "summary.md").write_text(text + "\n")
     print(text)

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Stage 2 v14 candidate: v13's recipe with refined renders in the fine-tune (issue 18, "stage 2
+# on refined renders"). v10 + 2,000 steps at LPIPS weight 1.0 with the sub-pixel shift term on
+# generator v5's raw renders (raw64 / raw128 / raw256, as v13) *and* on the same scenes
+# refined for 100 steps (ref64: 2 and 4 inputs, ref128: 4 inputs; what `--refine-steps 100`
+# and the add-on's 3-s default render), then blended back with v10 at the fine-tune's share
+# WEIGHT (default 0.3, as v13). Why: stage 2 has only seen raw renders, so after refinement it
+# gains less than it could and loses to refinement alone on some families (BENCHMARKS
+# "Stage 2 v13").
+#   1. scripts/train_stage2_v13.sh's data and raw sets (SETS13, default runs/s2v13/sets);
+#   2. ref64 / ref128 curated here (~11 / ~26 min on one thread, two at once);
+#   3. the fine-tune (~12 min on one thread) and the blend, written to OUT/improve_v14.safetensors.
+# Resumable: curated sets and the training run are kept.
+#   scripts/train_stage2_v14.sh [STEPS]   (OUT= the run folder, default runs/s2v14)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+P=${PROSPLAT:-.venv/bin/prosplat}
+OUT=${OUT:-runs/s2v14}
+SETS13=${SETS13:-runs/s2v13/sets}
+. scripts/shipped_before.sh
+shipped_before "$OUT/v10.safetensors" improve_tiny.safetensors 028c321  # stage 2 v10
+for s in raw64 raw128 raw256; do
+  [ -f "$SETS13/$s.safetensors" ] || { echo "no $SETS13/$s.safetensors: run scripts/train_stage2_v13.sh first" >&2; exit 1; }
+done
+mkdir -p "$OUT/sets"
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+ref() {  # NAME VIEWS SIZE
+  [ -f "$OUT/sets/$1.safetensors" ] || $P train curate --data data/train128 \
+    --out "$OUT/sets/$1.safetensors" --views "$2" --size "$3" --generator-size 128 --refine-steps 100
+}
+ref ref64 2,4 64 &
+ref ref128 4 128
+wait
+DATA_SETS="$SETS13/raw64.safetensors,$SETS13/raw128.safetensors,$SETS13/raw256.safetensors"
+DATA_SETS="$DATA_SETS,$OUT/sets/ref64.safetensors,$OUT/sets/ref128.safetensors"
+$P train improve --data "$DATA_SETS" --out "$OUT/lp1r" --init "$OUT/v10.safetensors" \
+  --warp --padding replicate --alpha --crop 48 --flip --steps "${1:-2000}" --batch 8 \
+  --lr 1e-4 --warmup 100 --lpips-weight 1.0 --shift-weight 10 --subpixel-shift \
+  --working-size 256 --save-every 100 --log-every 50
+[ -f "$OUT/improve_v14.safetensors" ] || $P train blend "$OUT/v10.safetensors" \
+  "$OUT/lp1r/improve.safetensors" --weight "${WEIGHT:-0.3}" --out "$OUT/improve_v14.safetensors"
