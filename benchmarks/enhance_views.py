@@ -272,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
     if inputs:
         text += "\n\nRe-rendered input cameras (PSNR / LPIPS)\n\n" + summary(inputs, variants)
         text = text[: text.rindex("\n\nGuard sweep")]  # the sweep is for targets
-    if flicker_rows:  # per scene too: the bar (1.2x) needs more than the table's 3 decimals
+    if flicker_rows:  # each scene's figures: the 1.2x bar is judged on their median
         with open(args.out / "flicker.csv", "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(flicker_rows[0]))
             w.writeheader()
