@@ -18,7 +18,7 @@
 #   scripts/train_stage2_v12.sh [STEPS]   (default 2000; LPIPS= the LPIPS weight, default 0.5;
 #   SHIFT= the shift weight, default 10; SUBPIXEL=0 for the control; INIT= the starting stage
 #   2, default v10 from git history; SETS= the curated sets' folder; OUT= the run folder;
-#   USE256=0 leaves raw256 out)
+#   USE256=0 leaves raw256 out; EXTRA_SETS= more curated sets to train on, comma-separated)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -39,6 +39,7 @@ if [ "${USE256:-1}" = 1 ] && [ -d data/train256 ]; then
     --generator-size 128 --refine-steps 0
   DATA_SETS="$DATA_SETS,$SETS/raw256.safetensors"
 fi
+DATA_SETS="$DATA_SETS${EXTRA_SETS:+,$EXTRA_SETS}"
 SUB=()
 [ "${SUBPIXEL:-1}" = 0 ] || SUB=(--subpixel-shift)
 OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train improve \

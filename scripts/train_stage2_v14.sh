@@ -10,7 +10,8 @@
 # refinement, so the gap is not stage 2's.
 #   1. scripts/train_stage2_v13.sh's data and raw sets (SETS13, default runs/s2v13/sets);
 #   2. ref64 / ref128 curated here (~11 / ~26 min on one thread, two at once);
-#   3. the fine-tune (~12 min on one thread) and the blend, written to OUT/improve_v14.safetensors.
+#   3. the fine-tune: scripts/train_stage2_v12.sh with LPIPS=1.0 and the refined sets added
+#      (~12 min on one thread), and the blend, written to OUT/improve_v14.safetensors.
 # Resumable: curated sets and the training run are kept.
 #   scripts/train_stage2_v14.sh [STEPS]   (OUT= the run folder, default runs/s2v14)
 set -euo pipefail
@@ -33,11 +34,7 @@ ref ref64 2,4 64 &
 pid=$!
 ref ref128 4 128
 wait $pid  # a failed curation stops the script (set -e)
-DATA_SETS="$SETS13/raw64.safetensors,$SETS13/raw128.safetensors,$SETS13/raw256.safetensors"
-DATA_SETS="$DATA_SETS,$OUT/sets/ref64.safetensors,$OUT/sets/ref128.safetensors"
-$P train improve --data "$DATA_SETS" --out "$OUT/lp1r" --init "$OUT/v10.safetensors" \
-  --warp --padding replicate --alpha --crop 48 --flip --steps "${1:-2000}" --batch 8 \
-  --lr 1e-4 --warmup 100 --lpips-weight 1.0 --shift-weight 10 --subpixel-shift \
-  --working-size 256 --save-every 100 --log-every 50
+EXTRA_SETS="$OUT/sets/ref64.safetensors,$OUT/sets/ref128.safetensors" LPIPS=1.0 \
+  INIT="$OUT/v10.safetensors" SETS="$SETS13" OUT="$OUT/lp1r" scripts/train_stage2_v12.sh "${1:-2000}"
 [ -f "$OUT/improve_v14.safetensors" ] || $P train blend "$OUT/v10.safetensors" \
   "$OUT/lp1r/improve.safetensors" --weight "${WEIGHT:-0.3}" --out "$OUT/improve_v14.safetensors"
