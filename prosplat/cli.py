@@ -606,6 +606,16 @@ def build_parser() -> argparse.ArgumentParser:
         "channels (sharper matching peaks at wide baselines), entering through zero weights "
         "so training starts from the init's exact outputs (default 0: off)",
     )
+    tg.add_argument(
+        "--grow-alexnet",
+        type=int,
+        default=defaults.grow_alexnet,
+        choices=range(4),
+        metavar="N",
+        help="with --init prosplat weights: add the frozen AlexNet relu1..reluN features of "
+        "LPIPS (N 1-3; copied into the weights file) to the monocular branch, entering through "
+        "zero weights so training starts from the init's exact outputs (default 0: off)",
+    )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)
     from prosplat.cli_improve import add_eval_parser, add_train_parsers

@@ -283,6 +283,63 @@ def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
         grow_fine_matching(SMALL, old.state_dict(), 0)
 
 
+def test_grow_alexnet_reproduces_the_trained_network_then_learns(tmp_path):
+    """Growing weights by frozen AlexNet features gives the same Gaussians as the original
+    network (the projection's last layer is zero); the backbone is LPIPS's own AlexNet (its
+    relu1 matches LPIPS's at 1/4 resolution), survives a save and load, and never gets a
+    gradient (buffers), while a gradient step opens the projection."""
+    import torch.nn.functional as F
+
+    from prosplat.generator.alexnet import FrozenAlexNet
+    from prosplat.generator.grow import grow_alexnet
+    from prosplat.metrics import LPIPS
+
+    torch.manual_seed(4)
+    old = Generator(TINY).eval()
+    with torch.no_grad():
+        for p in old.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    cfg, state = grow_alexnet(TINY, old.state_dict(), 3)
+    assert cfg.alexnet_layers == 3
+    new = Generator(cfg).eval()
+    new.load_state_dict(state)
+    assert not any("alexnet.conv" in n for n, _ in new.named_parameters())  # frozen: buffers
+    cams = rig(3, 64, 64)
+    images, K, w2c = batch(cams)
+    with torch.no_grad():
+        a, b = old(images, K, w2c, NEAR, FAR), new(images, K, w2c, NEAR, FAR)
+    torch.testing.assert_close(b.depths, a.depths, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(b.means, a.means, atol=1e-5, rtol=1e-5)
+
+    x = images[0] * 2 - 1  # [V,3,64,64] as the branch sees them
+    lp = LPIPS()
+    relu1 = lp.features((x - lp.shift) / lp.scale)[0]  # [V,64,15,15]
+    relu1 = relu1 / (relu1.square().sum(1, keepdim=True).sqrt() + 1e-10)
+    expect = F.interpolate(relu1, size=(16, 16), mode="bilinear", align_corners=False)
+    feats = new.monocular.alexnet(x)  # [V,640,16,16]
+    assert feats.shape == (3, 640, 16, 16)
+    torch.testing.assert_close(feats[:, :64], expect, atol=1e-5, rtol=1e-5)
+    assert FrozenAlexNet(2).out_channels == 256
+
+    pipe = ProSplat(cfg)  # the backbone travels in the weights file
+    pipe.generator.load_state_dict(state)
+    loaded = ProSplat.from_pretrained(pipe.save(tmp_path / "g2.safetensors"), improve=False)
+    torch.testing.assert_close(
+        loaded.generator.monocular.alexnet.conv2_weight, lp.features.conv2.weight
+    )
+
+    new.train()
+    target = torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(5))
+    render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
+    assert new.monocular.alexnet_proj[2].weight.grad.abs().max() > 0
+    with pytest.raises(ValueError, match="already"):
+        grow_alexnet(cfg, state, 3)
+    with pytest.raises(ValueError, match="alexnet_layers"):
+        grow_alexnet(TINY, old.state_dict(), 4)
+    with pytest.raises(FileNotFoundError, match="lpips_weights"):
+        grow_alexnet(TINY, old.state_dict(), 3, lpips_weights=tmp_path / "none.safetensors")
+
+
 def test_warp_grid_matches_camera_projection():
     """The grid for a candidate depth samples the neighbour exactly where Camera.project puts
     the reference pixel centre lifted to that depth (pixel centres at +0.5, align_corners=False)."""

@@ -528,3 +528,28 @@ def test_log_depth_loss_is_the_same_at_every_scene_scale():
     assert float(depth_error(gt, gt, "log")) == 0 and float(depth_error(gt, gt, "inverse")) == 0
     with pytest.raises(ValueError, match="depth_loss"):
         TrainConfig(data="x", out="y", depth_loss="l2")
+
+
+def test_grow_alexnet_starts_from_the_init(dataset, tmp_path):
+    """--grow-alexnet: at a learning rate of ~0 the saved network is the init's with AlexNet
+    features added (LPIPS's weights, frozen), predicting the same depth; refused without
+    prosplat --init weights."""
+    from prosplat.metrics import LPIPS
+
+    torch.manual_seed(0)
+    start = ProSplat().save(tmp_path / "start.safetensors")
+    base = dict(data=str(dataset.parent / "fixed"), targets=1, inputs=2, lpips_weight=0.0, warmup=1)
+    grow = dict(**base, init=str(start), grow_alexnet=2, lr=1e-12, save_every=1, log_every=1)
+    train(TrainConfig(**grow, out=str(tmp_path / "g"), steps=1), progress=False)
+    grown = ProSplat.from_pretrained(tmp_path / "g" / WEIGHTS_NAME).generator
+    assert grown.config.alexnet_layers == 2
+    torch.testing.assert_close(grown.monocular.alexnet.conv2_bias, LPIPS().features.conv2.bias)
+    scene = SceneDataset(str(dataset.parent / "fixed"), n_inputs=2)[0]
+    images, K, w2c = scene["input_images"][None], scene["input_K"][None], scene["input_w2c"][None]
+    near, far = scene["near"][None], scene["far"][None]
+    with torch.no_grad():
+        a = ProSplat.from_pretrained(start).generator.eval()(images, K, w2c, near, far).depths
+        b = grown.eval()(images, K, w2c, near, far).depths
+    torch.testing.assert_close(b, a, atol=1e-4, rtol=1e-4)
+    with pytest.raises(ValueError, match="grow_alexnet"):
+        TrainConfig(**base, out="x", grow_alexnet=1)

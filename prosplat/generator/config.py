@@ -37,6 +37,9 @@ class GeneratorConfig:
             cells, still finds a sharp peak. 0 (v1 weights) leaves it out.
         mono_channels: channels of the monocular branch (stands in for DepthSplat's ViT).
         mono_blocks: residual blocks in the monocular branch (dilations cycle 1, 2, 4).
+        alexnet_layers: 1-3 adds AlexNet's relu1..relu<n> maps (the LPIPS backbone, frozen,
+            stored in the weights file) to the monocular branch
+            (:mod:`prosplat.generator.alexnet`); 0 (v1-v5 weights) leaves them out.
         unet_channels: U-Net channels per level (level 0 at 1/4 resolution, each next level
             halves the resolution); three or more levels.
         refine_channels: channels of the full-resolution refinement network whose features
@@ -60,6 +63,7 @@ class GeneratorConfig:
     fine_matching_channels: int = 0
     mono_channels: int = 32
     mono_blocks: int = 3
+    alexnet_layers: int = 0
     unet_channels: tuple[int, ...] = (32, 40, 48, 64)
     refine_channels: int = 16
     sh_degree: int = 0
@@ -89,6 +93,10 @@ class GeneratorConfig:
         if self.attention_layers < 0 or self.mono_blocks < 0 or self.fine_matching_channels < 0:
             raise ValueError(
                 "GeneratorConfig.attention_layers, mono_blocks and fine_matching_channels must be >= 0"
+            )
+        if not 0 <= self.alexnet_layers <= 3:
+            raise ValueError(
+                f"GeneratorConfig.alexnet_layers must be 0-3, got {self.alexnet_layers}"
             )
         if self.feature_channels % self.attention_heads:
             raise ValueError(

@@ -1,15 +1,18 @@
 """Grow trained generator weights into a larger network that computes the same function.
 
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
-does not. When a change adds a module (here: the 1/2-resolution cost volume of
-``fine_matching_channels``), the trained weights are copied into the larger network and the
-new module enters through weights that start at zero, so step 0 of the fine-tune reproduces
-the old generator exactly and training only has to learn what the new input adds.
+does not. When a change adds a module (the 1/2-resolution cost volume of
+``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``), the trained
+weights are copied into the larger network and the new module enters through weights that
+start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
+only has to learn what the new input adds.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -64,4 +67,51 @@ def grow_fine_matching(
             )
         else:
             out[key] = old.clone()
+    return grown_config, out
+
+
+def grow_alexnet(
+    config: GeneratorConfig,
+    state: dict[str, Tensor],
+    layers: int,
+    lpips_weights: str | os.PathLike | None = None,
+) -> tuple[GeneratorConfig, dict[str, Tensor]]:
+    """Weights of ``config`` (without AlexNet features) -> the same network with AlexNet's
+    relu1..relu``layers`` added to the monocular branch, and a state dict that gives identical
+    outputs: the backbone's weights come from the LPIPS file (``lpips_weights``, default
+    where :class:`prosplat.metrics.LPIPS` looks) and stay frozen; the projection's last 1x1
+    convolution is zero (its init), its first keeps a fresh random init (seeded by the caller).
+    """
+    from safetensors.torch import load_file
+
+    from prosplat.metrics.lpips_weights import default_weights_path, validate_weights_file
+
+    if config.alexnet_layers:
+        raise ValueError(
+            f"grow_alexnet: the weights already have AlexNet features (alexnet_layers="
+            f"{config.alexnet_layers})"
+        )
+    path = Path(lpips_weights) if lpips_weights is not None else default_weights_path()
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"grow_alexnet: no LPIPS weights at {path}; run `python -m "
+            "prosplat.metrics.lpips_weights` (they hold the AlexNet the generator copies)"
+        )
+    validate_weights_file(path)
+    lpips_state = load_file(str(path))
+    grown_config = replace(config, alexnet_layers=layers)  # validates ``layers``
+    grown = Generator(grown_config).state_dict()
+    missing = set(state) - set(grown)
+    if missing:
+        raise ValueError(f"grow_alexnet: unexpected weights {sorted(missing)[:3]}")
+    out: dict[str, Tensor] = {}
+    for key, fresh in grown.items():
+        if key.startswith("monocular.alexnet.conv"):
+            name = key.rsplit(".", 1)[1]  # conv1_weight
+            conv, kind = name.split("_")
+            out[key] = lpips_state[f"features.{conv}.{kind}"].to(fresh.dtype).clone()
+        elif key in state:
+            out[key] = state[key].clone()
+        else:
+            out[key] = fresh  # the projection's own init (last layer zero)
     return grown_config, out

@@ -60,7 +60,7 @@ class Generator(nn.Module):
             c.attention_mlp_ratio,
             c.fine_matching_channels,
         )
-        self.monocular = MonocularBranch(c.mono_channels, c.mono_blocks)
+        self.monocular = MonocularBranch(c.mono_channels, c.mono_blocks, c.alexnet_layers)
         self.depth_head = DepthHead(
             c.num_depth_candidates,
             c.mono_channels,

@@ -18,6 +18,7 @@ training loss.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
@@ -26,7 +27,7 @@ from torch import Tensor, nn
 
 from prosplat.metrics.image import _check_images, _check_mask, _check_nonempty
 
-__all__ = ["LPIPS", "LPIPS_MIN_SIZE", "lpips"]
+__all__ = ["LPIPS", "LPIPS_MIN_SIZE", "alexnet_relus", "lpips"]
 
 #: AlexNet feature channels at relu1..relu5 (the layers LPIPS compares).
 ALEX_CHANNELS = (64, 192, 384, 256, 256)
@@ -36,9 +37,24 @@ LPIPS_MIN_SIZE = 31
 
 # LPIPS's ScalingLayer: inputs in [-1, 1] are shifted and scaled per channel (ImageNet stats
 # expressed in [-1, 1] units).
-_SHIFT = (-0.030, -0.088, -0.188)
-_SCALE = (0.458, 0.448, 0.450)
+ALEX_SHIFT = (-0.030, -0.088, -0.188)
+ALEX_SCALE = (0.458, 0.448, 0.450)
 _EPS = 1e-10  # as lpips.normalize_tensor: x / (||x|| + eps)
+
+
+def alexnet_relus(x: Tensor, convs: Sequence[tuple[Tensor, Tensor]]) -> list[Tensor]:
+    """AlexNet's ``features`` cut after each ReLU the way LPIPS slices it, for as many layers as
+    ``convs`` holds (weight, bias) pairs (1-5). ``x [N,3,H,W]`` already scaled (``ALEX_SHIFT`` /
+    ``ALEX_SCALE``). One definition of the layer geometry for LPIPS and for the generator's frozen
+    backbone (:mod:`prosplat.generator.alexnet`)."""
+    if not 1 <= len(convs) <= len(ALEX_CHANNELS):
+        raise ValueError(f"alexnet_relus: 1-{len(ALEX_CHANNELS)} layers, got {len(convs)}")
+    (w1, b1), *rest = convs
+    out = [F.relu(F.conv2d(x, w1, b1, stride=4, padding=2))]  # [N,64,(H-7)//4+1,..]
+    for i, (w, b) in enumerate(rest):  # relu2 and relu3 follow a 3/2 max pool
+        h = F.max_pool2d(out[-1], kernel_size=3, stride=2) if i < 2 else out[-1]
+        out.append(F.relu(F.conv2d(h, w, b, padding=w.shape[-1] // 2)))
+    return out
 
 
 class _AlexNetFeatures(nn.Module):
@@ -55,12 +71,8 @@ class _AlexNetFeatures(nn.Module):
 
     def forward(self, x: Tensor) -> list[Tensor]:
         """[N, 3, H, W] (already scaled) -> five [N, C_l, h_l, w_l] ReLU feature maps."""
-        r1 = F.relu(self.conv1(x))  # [N, 64, (H-7)//4+1, ...]
-        r2 = F.relu(self.conv2(F.max_pool2d(r1, kernel_size=3, stride=2)))  # [N, 192, ...]
-        r3 = F.relu(self.conv3(F.max_pool2d(r2, kernel_size=3, stride=2)))  # [N, 384, ...]
-        r4 = F.relu(self.conv4(r3))  # [N, 256, ...]
-        r5 = F.relu(self.conv5(r4))  # [N, 256, ...]
-        return [r1, r2, r3, r4, r5]
+        convs = (self.conv1, self.conv2, self.conv3, self.conv4, self.conv5)
+        return alexnet_relus(x, [(c.weight, c.bias) for c in convs])
 
 
 def _default_weights_path() -> Path:
@@ -92,8 +104,8 @@ class LPIPS(nn.Module):
         super().__init__()
         self.features = _AlexNetFeatures()
         self.lin = nn.ModuleList(nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in ALEX_CHANNELS)
-        shift = torch.tensor(_SHIFT).view(1, 3, 1, 1)
-        scale = torch.tensor(_SCALE).view(1, 3, 1, 1)
+        shift = torch.tensor(ALEX_SHIFT).view(1, 3, 1, 1)
+        scale = torch.tensor(ALEX_SCALE).view(1, 3, 1, 1)
         self.register_buffer("shift", shift, persistent=False)
         self.register_buffer("scale", scale, persistent=False)
         explicit = weights_path is not None

@@ -248,6 +248,9 @@ class TrainConfig:
     # many channels, entering through zero weights so step 0 is the init's generator
     # (prosplat.generator.grow); 0 = the network of ``config``
     grow_fine_matching: int = 0
+    # with a prosplat ``init`` without them: add frozen AlexNet relu1..relu<n> features to the
+    # monocular branch through zero weights (prosplat.generator.grow.grow_alexnet); 0 = off
+    grow_alexnet: int = 0
     grad_clip: float = 0.5
     warmup: int = 500
     log_every: int = 10
@@ -271,8 +274,11 @@ class TrainConfig:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
         if self.grow_fine_matching < 0:
             raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
-        if self.grow_fine_matching and not (self.init or "").endswith(".safetensors"):
-            raise ValueError("grow_fine_matching needs --init with prosplat generator weights")
+        if not 0 <= self.grow_alexnet <= 3:
+            raise ValueError(f"grow_alexnet must be 0-3, got {self.grow_alexnet}")
+        for name in ("grow_fine_matching", "grow_alexnet"):
+            if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
+                raise ValueError(f"{name} needs --init with prosplat generator weights")
 
     @property
     def last_step(self) -> int:
@@ -564,7 +570,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         pipe = None
     else:
         init_state = None
-        if cfg.grow_fine_matching:
+        if cfg.grow_fine_matching or cfg.grow_alexnet:
             model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
@@ -716,17 +722,21 @@ def _init_weights(cfg: TrainConfig):
 
 def _grown_init(cfg: TrainConfig):
     """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
-    channels; on a resume only the config is used (the checkpoint holds the weights)."""
+    channels and then by ``cfg.grow_alexnet`` AlexNet layers; on a resume only the config is
+    used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
-    from prosplat.generator.grow import grow_fine_matching
+    from prosplat.generator.grow import grow_alexnet, grow_fine_matching
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
     if "config" not in meta:
         raise ValueError(f"{cfg.init} has no generator config in its metadata to grow")
-    return grow_fine_matching(
-        GeneratorConfig.from_json(meta["config"]), state, cfg.grow_fine_matching
-    )
+    config = GeneratorConfig.from_json(meta["config"])
+    if cfg.grow_fine_matching:
+        config, state = grow_fine_matching(config, state, cfg.grow_fine_matching)
+    if cfg.grow_alexnet:
+        config, state = grow_alexnet(config, state, cfg.grow_alexnet)
+    return config, state
 
 
 def _save_heads(model, opt, step: int, out: Path, init: str) -> None:

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Generator v6 candidates: v5 fine-tuned for STEPS more steps with v5's recipe on the scenes
+# of data/train128 (seeds 10000-10359 and 10 rounds of the hard scenes, all of them scenes v5
+# also trained on), at 64 and 128 px.
+#   GROW_ALEXNET=3 : v5 grown by frozen AlexNet relu1-3 features (the LPIPS backbone, the one
+#                    pretrained CNN here) added to the monocular branch through zero weights,
+#                    so step 0 is v5 (prosplat.generator.grow.grow_alexnet)
+#   GROW_ALEXNET=0 : the control, the same steps and batches without them
+# ~1 s a step on one thread. Resumable: re-run to go on (the run folder keeps its state).
+#   GROW_ALEXNET=3|0 OUT=runs/gen_v6a scripts/train_generator_v6.sh [STEPS]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+P=${PROSPLAT:-.venv/bin/prosplat}
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+INIT=${INIT:-runs/generator_v5.safetensors}
+GROW_ALEXNET=${GROW_ALEXNET:-3}
+OUT=${OUT:-runs/gen_v6a}
+. scripts/shipped_before.sh
+. scripts/scene_subset.sh
+shipped_before "$INIT" generator_tiny.safetensors 9665e28  # generator v5
+hard() {  # the hard scenes of render rounds 0..$1-1: seeds 20000 + 100 kind + 2 round (+1)
+  local k
+  for k in 0 1 2 3 4 5; do printf '20%d00-20%d%02d ' "$k" "$k" $((2 * $1 - 1)); done
+}
+scene_subset data/gen_v6 "10000-10359 $(hard 5)"
+grow=()
+[ "$GROW_ALEXNET" -gt 0 ] && grow=(--grow-alexnet "$GROW_ALEXNET")
+$P train generator --data data/gen_v6 --init "$INIT" --out "$OUT" --steps "${1:-3000}" \
+  "${grow[@]}" --sizes 64,128 --any-view --inputs 2,3,4,5,6 --targets 2 --lr 1.5e-4 \
+  --input-depth-weight 1 --depth-weight 0.1 --depth-loss log --input-render-weight 0.5 \
+  --target-scale 2 --warmup 100 --save-every 250 --log-every 50 --cache-scenes 512
