@@ -7,7 +7,7 @@
 #                    so step 0 is v5 (prosplat.generator.grow.grow_alexnet)
 #   GROW_ALEXNET=0 : the control, the same steps and batches without them
 # ~1 s a step on one thread. Resumable: re-run to go on (the run folder keeps its state).
-#   GROW_ALEXNET=3|0 OUT=runs/gen_v6a scripts/train_generator_v6.sh [STEPS]
+#   GROW_ALEXNET=3|0 OUT=runs/gen_v6a [INIT=...] [SEED=0] scripts/train_generator_v6.sh [STEPS]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -28,4 +28,5 @@ grow=()
 $P train generator --data data/gen_v6 --init "$INIT" --out "$OUT" --steps "${1:-3000}" \
   "${grow[@]}" --sizes 64,128 --any-view --inputs 2,3,4,5,6 --targets 2 --lr 1.5e-4 \
   --input-depth-weight 1 --depth-weight 0.1 --depth-loss log --input-render-weight 0.5 \
-  --target-scale 2 --warmup 100 --save-every 250 --log-every 50 --cache-scenes 512
+  --target-scale 2 --warmup 100 --save-every 250 --log-every 50 --cache-scenes 512 \
+  --seed "${SEED:-0}"
