@@ -492,7 +492,7 @@ def build_parser() -> argparse.ArgumentParser:
         "the CPU: run as is; several GPUs: torchrun --nproc_per_node K -m prosplat "
         "train generator ...",
     )
-    from prosplat.generator.config import PRESETS
+    from prosplat.generator.config import MAX_ALEXNET_LAYERS, PRESETS
     from prosplat.train.generator import DEPTH_LOSSES, TrainConfig, parse_inputs
 
     defaults = TrainConfig(data="", out="")
@@ -610,7 +610,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--grow-alexnet",
         type=int,
         default=defaults.grow_alexnet,
-        choices=range(4),
+        choices=range(MAX_ALEXNET_LAYERS + 1),
         metavar="N",
         help="with --init prosplat weights: add the frozen AlexNet relu1..reluN features of "
         "LPIPS (N 1-3; copied into the weights file) to the monocular branch, entering through "

@@ -14,3 +14,11 @@ scene_subset() {
     done
   done
 }
+
+# The hard scenes of render rounds 0..N-1, as seed ranges for scene_subset: seeds
+# 20000 + 100 kind + 2 round (+1), six kinds.
+#   hard_rounds N
+hard_rounds() {
+  local k
+  for k in 0 1 2 3 4 5; do printf '20%d00-20%d%02d ' "$k" "$k" $((2 * $1 - 1)); done
+}

@@ -17,19 +17,15 @@ INIT=${INIT:-runs/generator_v3.safetensors}
 . scripts/shipped_before.sh
 . scripts/scene_subset.sh
 shipped_before "$INIT" generator_tiny.safetensors 00a9ef7  # generator v3
-hard() {  # the hard scenes of render rounds 0..$1-1: seeds 20000 + 100 kind + 2 round (+1)
-  local k
-  for k in 0 1 2 3 4 5; do printf '20%d00-20%d%02d ' "$k" "$k" $((2 * $1 - 1)); done
-}
 COMMON=(--val data/val128 --sizes 64 --any-view --inputs 2,3,4,5,6 --targets 2 --lr 1.5e-4
   --input-depth-weight 1 --depth-weight 0.1 --depth-loss log --input-render-weight 0.5
   --target-scale 2 --warmup 100 --save-every 250 --log-every 50 --val-every 1000
   --val-scenes 8 --cache-scenes 256)
-scene_subset data/gen_v4a "10000-10119 $(hard 1)"
+scene_subset data/gen_v4a "10000-10119 $(hard_rounds 1)"
 $P train generator --data data/gen_v4a --init "$INIT" --out runs/gen_v4log --steps 3000 \
   "${COMMON[@]}"
 cp runs/gen_v4log/checkpoint.safetensors runs/gen_v4log.safetensors
-scene_subset data/gen_v4b "10000-10209 $(hard 3)"
+scene_subset data/gen_v4b "10000-10209 $(hard_rounds 3)"
 $P train generator --data data/gen_v4b --init runs/gen_v4log.safetensors \
   --out runs/gen_v4b_nobg --steps 5000 "${COMMON[@]}"
 cp runs/gen_v4b_nobg/checkpoint.safetensors runs/generator_v4.safetensors

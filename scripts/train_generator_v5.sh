@@ -18,11 +18,7 @@ OUT=${OUT:-runs/gen_v5}
 . scripts/shipped_before.sh
 . scripts/scene_subset.sh
 shipped_before "$INIT" generator_tiny.safetensors be72ce8  # generator v4
-hard() {  # the hard scenes of render rounds 0..$1-1: seeds 20000 + 100 kind + 2 round (+1)
-  local k
-  for k in 0 1 2 3 4 5; do printf '20%d00-20%d%02d ' "$k" "$k" $((2 * $1 - 1)); done
-}
-scene_subset data/gen_v5 "10000-10419 $(hard 6)"
+scene_subset data/gen_v5 "10000-10419 $(hard_rounds 6)"
 $P train generator --data data/gen_v5 --init "$INIT" --out "$OUT" --steps "${1:-5000}" \
   --val data/val128 --sizes 64,128 --any-view --inputs 2,3,4,5,6 --targets 2 --lr 1.5e-4 \
   --input-depth-weight 1 --depth-weight 0.1 --depth-loss log --input-render-weight 0.5 \

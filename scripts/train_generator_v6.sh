@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Generator v6 candidates: v5 fine-tuned for STEPS more steps with v5's recipe on the scenes
-# of data/train128 (seeds 10000-10359 and 10 rounds of the hard scenes, all of them scenes v5
+# of data/train128 (seeds 10000-10359 and 10 of each hard scene, all of them scenes v5
 # also trained on), at 64 and 128 px.
 #   GROW_ALEXNET=3 : v5 grown by frozen AlexNet relu1-3 features (the LPIPS backbone, the one
 #                    pretrained CNN here) added to the monocular branch through zero weights,
@@ -18,11 +18,7 @@ OUT=${OUT:-runs/gen_v6a}
 . scripts/shipped_before.sh
 . scripts/scene_subset.sh
 shipped_before "$INIT" generator_tiny.safetensors 9665e28  # generator v5
-hard() {  # the hard scenes of render rounds 0..$1-1: seeds 20000 + 100 kind + 2 round (+1)
-  local k
-  for k in 0 1 2 3 4 5; do printf '20%d00-20%d%02d ' "$k" "$k" $((2 * $1 - 1)); done
-}
-scene_subset data/gen_v6 "10000-10359 $(hard 5)"
+scene_subset data/gen_v6 "10000-10359 $(hard_rounds 5)"
 grow=()
 [ "$GROW_ALEXNET" -gt 0 ] && grow=(--grow-alexnet "$GROW_ALEXNET")
 $P train generator --data data/gen_v6 --init "$INIT" --out "$OUT" --steps "${1:-3000}" \

@@ -16,11 +16,17 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from prosplat.metrics.lpips import ALEX_CHANNELS, ALEX_SCALE, ALEX_SHIFT, alexnet_relus
+from prosplat.generator.config import MAX_ALEXNET_LAYERS
+from prosplat.metrics.lpips import (
+    ALEX_CHANNELS,
+    ALEX_SCALE,
+    ALEX_SHIFT,
+    alexnet_relus,
+    unit_normalize,
+)
 
-#: The most layers the branch can take: relu3 is at 1/16 of the image, the coarsest level the
-#: 1/4-resolution depth head can still place (a 64-px input gives 3x3 maps there).
-MAX_ALEXNET_LAYERS = 3
+#: Kernel sizes of AlexNet's conv1..conv3.
+_KERNELS = (11, 5, 3)
 
 
 def alexnet_channels(layers: int) -> int:
@@ -42,11 +48,10 @@ class FrozenAlexNet(nn.Module):
         if not 1 <= layers <= MAX_ALEXNET_LAYERS:
             raise ValueError(f"FrozenAlexNet: layers must be 1-{MAX_ALEXNET_LAYERS}, got {layers}")
         self.layers = layers
-        shapes = [(ALEX_CHANNELS[0], 3, 11, 11)]
-        shapes += [(ALEX_CHANNELS[i], ALEX_CHANNELS[i - 1], 5 if i == 1 else 3, 3) for i in (1, 2)]
-        for i, (co, ci, k, _) in enumerate(shapes[:layers], start=1):
-            self.register_buffer(f"conv{i}_weight", torch.zeros(co, ci, k, k))
-            self.register_buffer(f"conv{i}_bias", torch.zeros(co))
+        for i in range(layers):
+            co, ci, k = ALEX_CHANNELS[i], (3, *ALEX_CHANNELS)[i], _KERNELS[i]
+            self.register_buffer(f"conv{i + 1}_weight", torch.zeros(co, ci, k, k))
+            self.register_buffer(f"conv{i + 1}_bias", torch.zeros(co))
         self.register_buffer("shift", torch.tensor(ALEX_SHIFT).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("scale", torch.tensor(ALEX_SCALE).view(1, 3, 1, 1), persistent=False)
 
@@ -61,7 +66,7 @@ class FrozenAlexNet(nn.Module):
             for i in range(1, self.layers + 1)
         ]
         maps = alexnet_relus((x - self.shift) / self.scale, convs)  # [N,C_l,h_l,w_l] each
-        maps = [m / (m.square().sum(1, keepdim=True).sqrt() + 1e-10) for m in maps]
+        maps = [unit_normalize(m) for m in maps]
         return torch.cat(
             [F.interpolate(m, size=(h, w), mode="bilinear", align_corners=False) for m in maps], 1
         )  # [N,C,H/4,W/4]

@@ -13,6 +13,10 @@ from typing import Any
 #: Images must be a multiple of this: 1/4-resolution features, then three U-Net halvings.
 SIZE_MULTIPLE = 32
 
+#: The most AlexNet layers ``alexnet_layers`` can take: relu3 is at 1/16 of the image, the
+#: coarsest level the 1/4-resolution depth head can still place (3x3 maps at 64 px).
+MAX_ALEXNET_LAYERS = 3
+
 
 @dataclass(frozen=True)
 class GeneratorConfig:
@@ -94,9 +98,10 @@ class GeneratorConfig:
             raise ValueError(
                 "GeneratorConfig.attention_layers, mono_blocks and fine_matching_channels must be >= 0"
             )
-        if not 0 <= self.alexnet_layers <= 3:
+        if not 0 <= self.alexnet_layers <= MAX_ALEXNET_LAYERS:
             raise ValueError(
-                f"GeneratorConfig.alexnet_layers must be 0-3, got {self.alexnet_layers}"
+                f"GeneratorConfig.alexnet_layers must be 0-{MAX_ALEXNET_LAYERS}, "
+                f"got {self.alexnet_layers}"
             )
         if self.feature_channels % self.attention_heads:
             raise ValueError(

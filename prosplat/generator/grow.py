@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import replace
-from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -82,23 +81,14 @@ def grow_alexnet(
     where :class:`prosplat.metrics.LPIPS` looks) and stay frozen; the projection's last 1x1
     convolution is zero (its init), its first keeps a fresh random init (seeded by the caller).
     """
-    from safetensors.torch import load_file
-
-    from prosplat.metrics.lpips_weights import default_weights_path, validate_weights_file
+    from prosplat.metrics import LPIPS
 
     if config.alexnet_layers:
         raise ValueError(
             f"grow_alexnet: the weights already have AlexNet features (alexnet_layers="
             f"{config.alexnet_layers})"
         )
-    path = Path(lpips_weights) if lpips_weights is not None else default_weights_path()
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"grow_alexnet: no LPIPS weights at {path}; run `python -m "
-            "prosplat.metrics.lpips_weights` (they hold the AlexNet the generator copies)"
-        )
-    validate_weights_file(path)
-    lpips_state = load_file(str(path))
+    alexnet = LPIPS(lpips_weights).features  # checks the file; its error names the command
     grown_config = replace(config, alexnet_layers=layers)  # validates ``layers``
     grown = Generator(grown_config).state_dict()
     missing = set(state) - set(grown)
@@ -107,9 +97,8 @@ def grow_alexnet(
     out: dict[str, Tensor] = {}
     for key, fresh in grown.items():
         if key.startswith("monocular.alexnet.conv"):
-            name = key.rsplit(".", 1)[1]  # conv1_weight
-            conv, kind = name.split("_")
-            out[key] = lpips_state[f"features.{conv}.{kind}"].to(fresh.dtype).clone()
+            conv, kind = key.rsplit(".", 1)[1].split("_")  # conv1_weight
+            out[key] = getattr(getattr(alexnet, conv), kind).detach().to(fresh.dtype).clone()
         elif key in state:
             out[key] = state[key].clone()
         else:

@@ -27,7 +27,7 @@ from torch import Tensor, nn
 
 from prosplat.metrics.image import _check_images, _check_mask, _check_nonempty
 
-__all__ = ["LPIPS", "LPIPS_MIN_SIZE", "alexnet_relus", "lpips"]
+__all__ = ["LPIPS", "LPIPS_MIN_SIZE", "alexnet_relus", "lpips", "unit_normalize"]
 
 #: AlexNet feature channels at relu1..relu5 (the layers LPIPS compares).
 ALEX_CHANNELS = (64, 192, 384, 256, 256)
@@ -83,7 +83,7 @@ def _default_weights_path() -> Path:
     return default_weights_path()
 
 
-def _unit_normalize(x: Tensor) -> Tensor:
+def unit_normalize(x: Tensor) -> Tensor:
     """Divide each pixel's feature vector by its L2 norm (+1e-10), as the reference does."""
     return x / (torch.sqrt(torch.sum(x * x, dim=1, keepdim=True)) + _EPS)
 
@@ -168,7 +168,7 @@ class LPIPS(nn.Module):
         total = x.new_zeros(b)
         for feat, lin in zip(self.features(x), self.lin, strict=True):
             f0, f1 = feat[:b], feat[b:]  # [B, C_l, h_l, w_l]
-            d = lin((_unit_normalize(f0) - _unit_normalize(f1)) ** 2)  # [B, 1, h_l, w_l]
+            d = lin((unit_normalize(f0) - unit_normalize(f1)) ** 2)  # [B, 1, h_l, w_l]
             if m is None:
                 total = total + d.mean(dim=(1, 2, 3))
             else:

@@ -60,6 +60,7 @@ import torch
 from torch import Tensor
 
 from prosplat.camera import Camera
+from prosplat.generator.config import MAX_ALEXNET_LAYERS
 from prosplat.render import render
 from prosplat.train.common import (
     Dist,
@@ -274,8 +275,10 @@ class TrainConfig:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
         if self.grow_fine_matching < 0:
             raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
-        if not 0 <= self.grow_alexnet <= 3:
-            raise ValueError(f"grow_alexnet must be 0-3, got {self.grow_alexnet}")
+        if not 0 <= self.grow_alexnet <= MAX_ALEXNET_LAYERS:
+            raise ValueError(
+                f"grow_alexnet must be 0-{MAX_ALEXNET_LAYERS}, got {self.grow_alexnet}"
+            )
         for name in ("grow_fine_matching", "grow_alexnet"):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
