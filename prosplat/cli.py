@@ -538,6 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
         "input_depth_weight",
         "input_render_weight",
         "crop_prob",
+        "frame_prob",
         "grad_clip",
     ):
         tg.add_argument(

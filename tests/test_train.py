@@ -553,3 +553,60 @@ def test_grow_alexnet_starts_from_the_init(dataset, tmp_path):
     torch.testing.assert_close(b, a, atol=1e-4, rtol=1e-4)
     with pytest.raises(ValueError, match="grow_alexnet"):
         TrainConfig(**base, out="x", grow_alexnet=1)
+
+
+def test_frame_window_draws_every_other_shape_inside_the_frame():
+    """Windows are never the whole frame, their sides are multiples of 32 from 64 up, they fit,
+    and every other shape (2:1, 1:2, smaller squares) is drawn; a frame with no other shape is
+    refused."""
+    import random
+
+    from prosplat.train.generator import frame_window
+
+    rng = random.Random(0)
+    shapes = set()
+    for _ in range(400):
+        top, left, h, w = frame_window(128, 128, rng)
+        assert (h, w) != (128, 128) and h % 32 == 0 and w % 32 == 0 and min(h, w) >= 64
+        assert 0 <= top <= 128 - h and 0 <= left <= 128 - w
+        shapes.add((h, w))
+    assert shapes == {(h, w) for h in (64, 96, 128) for w in (64, 96, 128)} - {(128, 128)}
+    with pytest.raises(ValueError, match="larger than 64"):
+        frame_window(64, 64, rng)
+    with pytest.raises(ValueError, match="frame_prob"):
+        TrainConfig(data="x", out="y", frame_prob=1.5)
+
+
+def test_framed_steps_crop_inputs_and_targets_with_their_cameras(tmp_path):
+    """frame_prob=1 at the data's size: every step's inputs, targets and depths take one window
+    of another shape, and each cropped pixel's depth unprojects through the shifted intrinsics
+    to the same world point as in the full frame; training on framed steps runs."""
+    from prosplat.data import SceneDataset
+    from prosplat.train.generator import _step_view, batch_cameras
+
+    root = tmp_path / "data96"
+    write_synthetic_scene(root / "scene", size=96, n_views=4)
+    item = SceneDataset(str(root), n_inputs=2, n_targets=1)[0]
+    batch = {k: v[None] for k, v in item.items()}
+    base = dict(data=str(root), targets=1, inputs=2, lpips_weight=0.0, log_every=1, sizes="96")
+    cfg = TrainConfig(**base, out=str(tmp_path / "run"), steps=2, frame_prob=1.0)
+    for step in range(6):
+        out = _step_view(batch, cfg, step)
+        h, w = out["input_images"].shape[-2:]
+        assert (h, w) != (96, 96) and out["target_depths"].shape[-2:] == (h, w)
+        full = batch_cameras(batch["input_K"][0], batch["input_w2c"][0], 96, 96)[0]
+        crop = batch_cameras(out["input_K"][0], out["input_w2c"][0], w, h)[0]
+        d = out["input_depths"][0, 0]
+        row, col = (d > 0).nonzero()[0].tolist()
+        uv = torch.tensor([[col + 0.5, row + 0.5]], dtype=torch.float64)
+        p = crop.unproject(uv, d[row, col].double()[None])
+        uv_full, _ = full.project(p)
+        r0, c0 = int(uv_full[0, 1]), int(uv_full[0, 0])  # the same pixel of the full frame
+        torch.testing.assert_close(
+            batch["input_images"][0, 0, :, r0, c0], out["input_images"][0, 0, :, row, col]
+        )
+    unframed = TrainConfig(**base, out=str(tmp_path / "none"), steps=1)
+    assert _step_view(batch, unframed, 0)["input_images"].shape[-2:] == (96, 96)
+    train(cfg, progress=False)
+    rec = json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[-1])
+    assert math.isfinite(rec["loss"]) and rec["step"] == 2
