@@ -34,7 +34,7 @@ CHECKPOINT_FORMAT = "prosplat-generator"
 #: released files, or prosplat's fine-tune of one); prosplat's own generators are safetensors.
 DEPTHSPLAT_SUFFIXES = (".pth", ".pt", ".ckpt")
 
-#: The image size (pixels, the short side) the shipped weights were trained at (v5 and v6: 64 and
+#: The image size (pixels, the short side) the shipped weights were trained at (v5-v7: 64 and
 #: 128 px): the generator runs at most this high, and ``prosplat reconstruct`` loads its inputs
 #: at this size by default. ``prosplat demo`` runs at 64 px (``demo.DEMO_SIZE``) to stay fast.
 TRAINED_SIZE = 128
