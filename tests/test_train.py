@@ -574,7 +574,9 @@ def test_frame_window_draws_every_other_shape_inside_the_frame():
     with pytest.raises(ValueError, match="larger than 64"):
         frame_window(64, 64, rng)
     with pytest.raises(ValueError, match="frame_prob"):
-        TrainConfig(data="x", out="y", frame_prob=1.5)
+        TrainConfig(data="x", out="y", frame_prob=1.5, sizes="128")
+    with pytest.raises(ValueError, match="give sizes"):  # else it would silently do nothing
+        TrainConfig(data="x", out="y", frame_prob=0.5)
 
 
 def test_framed_steps_crop_inputs_and_targets_with_their_cameras(tmp_path):

@@ -284,6 +284,8 @@ class TrainConfig:
         for name in ("crop_prob", "frame_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.frame_prob > 0 and not self.sizes:
+            raise ValueError("frame_prob frames the steps drawn at the data's size: give sizes")
         if not 0 <= self.grow_alexnet <= MAX_ALEXNET_LAYERS:
             raise ValueError(
                 f"grow_alexnet must be 0-{MAX_ALEXNET_LAYERS}, got {self.grow_alexnet}"
