@@ -6,6 +6,8 @@
 #                    pretrained CNN here) added to the monocular branch through zero weights,
 #                    so step 0 is v5 (prosplat.generator.grow.grow_alexnet)
 #   GROW_ALEXNET=0 : the control, the same steps and batches without them
+# LR (default 1.5e-4) and EXTRA_ARGS (more `train generator` flags) are for the runs that
+# continue this recipe (scripts/train_generator_v7.sh).
 # ~1 s a step on one thread. Resumable: re-run to go on (the run folder keeps its state).
 #   GROW_ALEXNET=3|0 OUT=runs/gen_v6a [INIT=...] [SEED=0] scripts/train_generator_v6.sh [STEPS]
 set -euo pipefail
@@ -21,8 +23,9 @@ shipped_before "$INIT" generator_tiny.safetensors 9665e28  # generator v5
 scene_subset data/gen_v6 "10000-10359 $(hard_rounds 5)"
 grow=()
 [ "$GROW_ALEXNET" -gt 0 ] && grow=(--grow-alexnet "$GROW_ALEXNET")
+read -r -a extra <<< "${EXTRA_ARGS:-}"
 $P train generator --data data/gen_v6 --init "$INIT" --out "$OUT" --steps "${1:-3000}" \
-  "${grow[@]}" --sizes 64,128 --any-view --inputs 2,3,4,5,6 --targets 2 --lr 1.5e-4 \
+  "${grow[@]}" --sizes 64,128 --any-view --inputs 2,3,4,5,6 --targets 2 --lr "${LR:-1.5e-4}" \
   --input-depth-weight 1 --depth-weight 0.1 --depth-loss log --input-render-weight 0.5 \
   --target-scale 2 --warmup 100 --save-every 250 --log-every 50 --cache-scenes 512 \
-  --seed "${SEED:-0}"
+  --seed "${SEED:-0}" "${extra[@]}"

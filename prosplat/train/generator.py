@@ -537,7 +537,7 @@ def _step_view(batch: dict[str, Tensor], cfg: TrainConfig, step: int) -> dict[st
     h, w = batch["input_images"].shape[-2:]
     big = min(size * cfg.target_scale, h, w)
     rng = random.Random(f"prosplat-crop/{cfg.seed}/{step}")
-    if size == min(h, w) == max(h, w) and cfg.frame_prob > 0:
+    if size == h == w and cfg.frame_prob > 0:
         frame = random.Random(f"prosplat-frame/{cfg.seed}/{step}")
         if frame.random() < cfg.frame_prob:
             top, left, ch, cw = frame_window(h, w, frame)
