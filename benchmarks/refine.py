@@ -48,6 +48,15 @@ VARIANTS: dict[str, RefineOptions] = {
     "means lr x0.3": RefineOptions.unregularised(
         lr=replace(RefineOptions().lr, means=RefineOptions().lr.means * 0.3)
     ),
+    "means lr x3": RefineOptions.unregularised(
+        lr=replace(RefineOptions().lr, means=RefineOptions().lr.means * 3)
+    ),
+    "means lr x10": RefineOptions.unregularised(
+        lr=replace(RefineOptions().lr, means=RefineOptions().lr.means * 10)
+    ),
+    "colour lr x3": RefineOptions.unregularised(
+        lr=replace(RefineOptions().lr, sh=RefineOptions().lr.sh * 3)
+    ),
     "means fixed": RefineOptions.unregularised(freeze_means_steps=10**9),
     "opacity 0.1": RefineOptions.unregularised(opacity_weight=0.1),
 }

@@ -1,18 +1,36 @@
 # Sourced by training scripts: a folder of links to the scenes of data/train128 whose seeds
 # fall in the given ranges, so a run can be repeated on exactly the scenes it saw while the
 # data set keeps growing (scripts/render_v2_data.sh train adds scenes in rounds).
-#   scene_subset DEST "FIRST-LAST FIRST-LAST ..."   (DEST is rebuilt; a missing scene is an error)
+#   scene_subset DEST "FIRST-LAST FIRST-LAST ..."   (a missing scene is an error)
+# The links are made in a fresh folder first; DEST is left alone when it already holds
+# exactly those links, so runs started side by side on one subset do not pull the scenes
+# from under each other, and is otherwise replaced.
 scene_subset() {
-  local dest=$1 range first last seed found
-  rm -rf "$dest" && mkdir -p "$dest"
+  local dest=$1 range first last seed found tmp
+  tmp=$(mktemp -d "${dest%/}.new.XXXXXX")
   for range in $2; do
     first=${range%-*} last=${range#*-}
     for seed in $(seq "$first" "$last"); do
       found=$(compgen -G "data/train128/*_$(printf %06d "$seed")" || true)
-      [ -n "$found" ] || { echo "scene_subset: no scene with seed $seed in data/train128" >&2; return 1; }
-      ln -s "$(realpath --relative-to="$dest" "$found")" "$dest/$(basename "$found")"
+      [ -n "$found" ] || {
+        echo "scene_subset: no scene with seed $seed in data/train128" >&2
+        rm -rf "$tmp"
+        return 1
+      }
+      ln -s "$(realpath --relative-to="$dest" "$found")" "$tmp/$(basename "$found")"
     done
   done
+  if [ -d "$dest" ] && diff -q <(_subset_links "$dest") <(_subset_links "$tmp") > /dev/null; then
+    rm -rf "$tmp"
+  else
+    rm -rf "$dest" && mv "$tmp" "$dest"
+  fi
+}
+
+# name -> target, one line a link, sorted: what scene_subset compares.
+_subset_links() {
+  local link
+  for link in "$1"/*; do printf '%s %s\n' "$(basename "$link")" "$(readlink "$link")"; done | sort
 }
 
 # The hard scenes of render rounds 0..N-1, as seed ranges for scene_subset: seeds
