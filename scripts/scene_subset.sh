@@ -23,7 +23,7 @@ scene_subset() {
   if [ -d "$dest" ] && diff -q <(_subset_links "$dest") <(_subset_links "$tmp") > /dev/null; then
     rm -rf "$tmp"
   else
-    rm -rf "$dest" && mv "$tmp" "$dest"
+    rm -rf "$dest" && mv -T "$tmp" "$dest"
   fi
 }
 

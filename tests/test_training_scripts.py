@@ -1,0 +1,96 @@
+"""The shell helpers the training scripts source (scripts/scene_subset.sh), run in bash on a
+fake ``data/train128``: the subset a run trains on must be exactly the seeds asked for, and
+two runs that build the same subset side by side must not pull scenes from under each other.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+
+
+def _bash(cwd: Path, script: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        ["bash", "-c", f". {SCRIPTS / 'scene_subset.sh'}\n{script}"],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+@pytest.fixture
+def root(tmp_path: Path) -> Path:
+    for name in ("open_010000", "room_010001", "tabletop_010002", "near_far_020000"):
+        scene = tmp_path / "data" / "train128" / name
+        scene.mkdir(parents=True)
+        (scene / "transforms.json").write_text("{}")
+    return tmp_path
+
+
+def _links(folder: Path) -> dict[str, Path]:
+    return {p.name: p.resolve() for p in folder.iterdir()}
+
+
+def test_scene_subset_links_exactly_the_seeds(root: Path) -> None:
+    r = _bash(root, 'scene_subset data/sub "10000-10001 20000-20000"')
+    assert r.returncode == 0, r.stderr
+    links = _links(root / "data" / "sub")
+    assert sorted(links) == ["near_far_020000", "open_010000", "room_010001"]
+    for name, target in links.items():
+        assert target == (root / "data" / "train128" / name).resolve()
+        assert (root / "data" / "sub" / name / "transforms.json").is_file()
+    assert not list((root / "data").glob("sub.new.*")), "the staging folder is left behind"
+
+
+def test_scene_subset_missing_seed_is_an_error_and_leaves_nothing(root: Path) -> None:
+    r = _bash(root, 'scene_subset data/sub "10000-10005"')
+    assert r.returncode != 0
+    assert "no scene with seed 10003" in r.stderr
+    assert not (root / "data" / "sub").exists()
+    assert not list((root / "data").glob("sub.new.*"))
+
+
+def test_scene_subset_keeps_an_identical_folder_and_replaces_another(root: Path) -> None:
+    assert _bash(root, 'scene_subset data/sub "10000-10001"').returncode == 0
+    sub = root / "data" / "sub"
+    inode = sub.stat().st_ino
+    # the same subset again (a second run starting beside the first): the folder is untouched
+    assert _bash(root, 'scene_subset data/sub "10000-10001"').returncode == 0
+    assert sub.stat().st_ino == inode
+    # another subset: the folder is replaced, with no link of the old one left
+    assert _bash(root, 'scene_subset data/sub "10002-10002"').returncode == 0
+    assert sorted(_links(sub)) == ["tabletop_010002"]
+    # nothing was written inside the scenes through the links
+    for scene in (root / "data" / "train128").iterdir():
+        assert sorted(p.name for p in scene.iterdir()) == ["transforms.json"]
+
+
+def test_scene_subset_side_by_side_runs_never_see_a_missing_scene(root: Path) -> None:
+    """Two subsets built at once while a reader lists the folder: the reader always finds
+    every scene (the old rm -rf + rebuild left it empty or half-built for a moment)."""
+    assert _bash(root, 'scene_subset data/sub "10000-10002"').returncode == 0
+    r = _bash(
+        root,
+        """
+        for i in $(seq 20); do scene_subset data/sub "10000-10002" & done
+        for i in $(seq 200); do
+          n=$(ls data/sub 2>/dev/null | wc -l)
+          [ "$n" -eq 3 ] || { echo "saw $n scenes" >&2; exit 1; }
+        done
+        wait
+        """,
+    )
+    assert r.returncode == 0, r.stderr
+    assert sorted(_links(root / "data" / "sub")) == [
+        "open_010000",
+        "room_010001",
+        "tabletop_010002",
+    ]
