@@ -540,6 +540,7 @@ def build_parser() -> argparse.ArgumentParser:
         "crop_prob",
         "frame_prob",
         "grad_clip",
+        "ema",
     ):
         tg.add_argument(
             f"--{name.replace('_', '-')}",

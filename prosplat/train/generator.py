@@ -74,6 +74,7 @@ from prosplat.train.common import (
     steps_per_epoch,
     truncate_log,
 )
+from prosplat.train.ema import WeightAverage
 
 __all__ = [
     "TrainConfig",
@@ -259,6 +260,10 @@ class TrainConfig:
     # monocular branch through zero weights (prosplat.generator.grow.grow_alexnet); 0 = off
     grow_alexnet: int = 0
     grad_clip: float = 0.5
+    # > 0: the saved weights are an exponential moving average of the trained ones with this
+    # decay (prosplat.train.ema; 0.998 averages about the last 500 steps); the raw weights
+    # travel in state.pt for resuming, and validation scores the raw ones. 0: off
+    ema: float = 0.0
     warmup: int = 500
     log_every: int = 10
     val_every: int = 1000
@@ -284,6 +289,8 @@ class TrainConfig:
         for name in ("crop_prob", "frame_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not 0 <= self.ema < 1:
+            raise ValueError(f"ema is a decay in [0, 1) (0: off), got {self.ema}")
         if self.frame_prob > 0 and not self.sizes:
             raise ValueError("frame_prob frames the steps drawn at the data's size: give sizes")
         if not 0 <= self.grow_alexnet <= MAX_ALEXNET_LAYERS:
@@ -605,6 +612,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
 
     heads = is_depthsplat_file(cfg.init)  # fine-tune a DepthSplat checkpoint's heads
     if heads:
+        if cfg.ema > 0:
+            raise ValueError("--ema averages prosplat generator weights, not DepthSplat heads")
         if cfg.input_depth_weight > 0:
             raise ValueError(
                 "--input-depth-weight supervises the depth predictor, which stays frozen when "
@@ -642,6 +651,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             model.load_trainable(ckpt.weights, str(ckpt.weights_path))
         else:
             model.load_state_dict(ckpt.weights)
+        if "raw_weights" in ckpt.state:  # a run with --ema saved its average as the weights
+            model.load_state_dict(ckpt.state["raw_weights"])
         opt.load_state_dict(ckpt.state["optimizer"])
         step = ckpt.step
         torch.set_rng_state(ckpt.state["rng"].cpu())
@@ -651,12 +662,18 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                 f"resuming from {ckpt.weights_path.name} at step {step}",
                 stacklevel=2,
             )
+    average = None
+    if cfg.ema > 0:
+        average = WeightAverage(model, cfg.ema)  # a run that turns --ema on starts it here
+        if ckpt is not None and "raw_weights" in ckpt.state:
+            average.load_state_dict(ckpt.weights, ckpt.state["ema_updates"])
     dist.barrier()
     if dist.is_main:
         if ckpt is None:
             cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
         else:
             truncate_log(log_path, step)
+            _record_resumed_config(cfg_path, cfg, step)
     ddp_model = dist.wrap(model)
 
     lpips_fn = None
@@ -707,6 +724,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                     f"loss became {float(loss.detach())} at step {step}; lower --lr"
                 )
             opt.step()
+            if average is not None:
+                average.update(model)
             step += 1
             bar.update(1)
             bar.set_postfix(loss=f"{float(loss.detach()):.4f}", views=n_views)
@@ -729,7 +748,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                 if heads:
                     _save_heads(model, opt, step, out, cfg.init)
                 else:
-                    _save(pipe, opt, step, out)
+                    _save(pipe, opt, step, out, average)
     finally:
         bar.close()
         if log is not None:
@@ -742,16 +761,38 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     return out / "checkpoint.safetensors"
 
 
-def _save(pipe, opt, step: int, out: Path) -> None:
+def _save(pipe, opt, step: int, out: Path, average: WeightAverage | None = None) -> None:
     """Checkpoint: weights (safetensors with the config and step) and optimiser state, written
-    so that a crash at any point leaves a consistent pair (see ``save_checkpoint``)."""
-    save_checkpoint(
-        out,
-        step,
-        pipe.generator.state_dict(),
-        {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()},
-        metadata=_weights_metadata(pipe, pipe.trained_size),
-    )
+    so that a crash at any point leaves a consistent pair (see ``save_checkpoint``). With a
+    weight average the safetensors holds the average (what is evaluated and shipped) and the
+    state the raw weights and the average's update count (what a resume continues from)."""
+    state = {"optimizer": opt.state_dict(), "rng": torch.get_rng_state()}
+    weights = pipe.generator.state_dict()
+    metadata = _weights_metadata(pipe, pipe.trained_size)
+    if average is not None:
+        state.update(raw_weights=weights, ema_updates=average.updates)
+        weights = average.state_dict(like=pipe.generator)
+        metadata["ema"] = json.dumps({"decay": average.decay, "updates": average.updates})
+    save_checkpoint(out, step, weights, state, metadata=metadata)
+
+
+def _record_resumed_config(cfg_path: Path, cfg: TrainConfig, step: int) -> None:
+    """A run resumed with other settings (``--ema`` turned on, a longer ``--steps``) writes
+    them to ``train_config.json`` and keeps what it ran with before as
+    ``train_config.before_<step>.json``, so the folder says how every step was trained."""
+    new = json.dumps(asdict(cfg), indent=1)
+    old = cfg_path.read_text() if cfg_path.exists() else None
+    per_call = ("stop_at",)  # where this invocation stops is not how the steps were trained
+    if old is None or _without(json.loads(old), per_call) == _without(json.loads(new), per_call):
+        return
+    kept = cfg_path.with_name(f"train_config.before_{step}.json")
+    if not kept.exists():
+        kept.write_text(old)
+    cfg_path.write_text(new)
+
+
+def _without(d: dict, keys: Sequence[str]) -> dict:
+    return {k: v for k, v in d.items() if k not in keys}
 
 
 def _init_weights(cfg: TrainConfig):
