@@ -261,7 +261,8 @@ class TrainConfig:
     grow_alexnet: int = 0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
-    # decay (prosplat.train.ema; 0.998 averages about the last 500 steps); the raw weights
+    # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
+    # steps once warmed up, 500 for 0.998 after ~4,500 updates); the raw weights
     # travel in state.pt for resuming, and validation scores the raw ones. 0: off
     ema: float = 0.0
     warmup: int = 500
