@@ -140,6 +140,17 @@ def test_ema_turned_on_at_a_resume_starts_from_the_weights_there(dataset, tmp_pa
     assert json.loads((run / "train_config.before_2.json").read_text())["ema"] == 0.0
 
 
+def test_a_config_written_before_a_setting_existed_is_not_a_change(dataset, tmp_path):
+    base = _base(dataset)
+    run = tmp_path / "old"
+    train(TrainConfig(**base, out=str(run), stop_at=2), progress=False)
+    cfg = json.loads((run / "train_config.json").read_text())
+    del cfg["ema"]  # as a run started before --ema wrote it
+    (run / "train_config.json").write_text(json.dumps(cfg))
+    train(TrainConfig(**base, out=str(run)), progress=False)
+    assert not list(run.glob("train_config.before_*"))
+
+
 def test_ema_is_refused_outside_its_range():
     with pytest.raises(ValueError, match="ema"):
         TrainConfig(data="d", out="o", ema=1.0)

@@ -784,7 +784,11 @@ def _record_resumed_config(cfg_path: Path, cfg: TrainConfig, step: int) -> None:
     new = json.dumps(asdict(cfg), indent=1)
     old = cfg_path.read_text() if cfg_path.exists() else None
     per_call = ("stop_at",)  # where this invocation stops is not how the steps were trained
-    if old is None or _without(json.loads(old), per_call) == _without(json.loads(new), per_call):
+    if old is None:
+        return
+    # keys an older version did not write (``ema`` before it existed) count as today's value
+    before = {**json.loads(new), **json.loads(old)}
+    if _without(before, per_call) == _without(json.loads(new), per_call):
         return
     kept = cfg_path.with_name(f"train_config.before_{step}.json")
     if not kept.exists():
