@@ -70,7 +70,7 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
     """Per-view rows; ``changes[(size, variant)]`` collects each enhanced - raw [3,H,W] and
     ``flicker_rows`` each scene's flicker figures."""
     torch.manual_seed(0)
-    model = ProSplat.from_pretrained()
+    model = ProSplat.from_pretrained(args.generator)
     improvers = _improvers(args.improve, model.improver)
     lpips = LPIPS()
     folders = [f for root in args.data for f in find_scenes(root)[: args.scenes]]
@@ -195,6 +195,12 @@ def main(argv: list[str] | None = None) -> int:
         nargs="+",
         default=[0, 64],
         help="stage 2's working sizes to compare (0: the view's own size, -1: each model's own)",
+    )
+    p.add_argument(
+        "--generator",
+        default=None,
+        help="generator weights to score (.safetensors; default: the shipped ones), so a "
+        "candidate is measured before it is swapped in",
     )
     p.add_argument(
         "--generator-size",

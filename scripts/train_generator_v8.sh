@@ -7,7 +7,10 @@
 #   EMA (default 0.998)      : decay of the weight average; 0 saves the raw weights
 # ~1 s a step on one thread. Resumable: re-run to go on (the run folder keeps its state); a
 # run started without EMA takes it up from where it resumes.
-#   OUT=runs/gen_v8 [INIT=...] [SEED=2] [FRAME_PROB=0.5] [EMA=0.998] scripts/train_generator_v8.sh [STEPS]
+# SCENES / SUBSET pass through to train_generator_v6.sh (another set of data/train128's seeds),
+# e.g. the first 3 render rounds: SCENES="10000-10179 $(. scripts/scene_subset.sh; hard_rounds 3)".
+#   OUT=runs/gen_v8 [INIT=...] [SEED=2] [FRAME_PROB=0.5] [EMA=0.998] [SCENES=... SUBSET=...] \
+#     scripts/train_generator_v8.sh [STEPS]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 INIT=${INIT:-runs/generator_v7.safetensors}
