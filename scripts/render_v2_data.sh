@@ -13,8 +13,9 @@
 # dB at 0.6x the time per view; every model here is below 21 dB, so the noise left is far
 # below the error it learns from. Scenes rendered before 2026-11-24 used 16 (the scene's
 # transforms.json records its samples).
-# Usage: scripts/render_v2_data.sh eval|train [ROUNDS]  (eval: val128 + test256; train: ROUNDS
-# rounds, default 40 = 2,880 scenes). The two parts can run at once (WORKERS=1 each).
+# Usage: scripts/render_v2_data.sh eval|test|train [ROUNDS]  (eval: val128, test128 and
+# test256; test: test128 and test256 only; train: ROUNDS rounds, default 40 = 2,880 scenes).
+# The parts can run at once (WORKERS=1 each).
 # THREADS=N: Cycles threads per worker (default: the cores / WORKERS), e.g. 1 beside a
 # one-thread training run.
 set -euo pipefail
@@ -23,7 +24,7 @@ P=${PROSPLAT:-.venv/bin/prosplat}
 SAMPLES=${SAMPLES:-8}
 HARD="textureless specular near_far thin_structures repeated_pattern inside_outside"
 R="$P scenes render --samples $SAMPLES --denoise --workers ${WORKERS:-2} ${THREADS:+--threads $THREADS}"
-part=${1:?usage: render_v2_data.sh eval|train [ROUNDS]}
+part=${1:?usage: render_v2_data.sh eval|test|train [ROUNDS]}
 hard_tests() {  # SIZE OUT: the 6 hard test scenes, seeds 950100-5
   local seed=950100 s
   for s in $HARD; do
@@ -31,8 +32,8 @@ hard_tests() {  # SIZE OUT: the 6 hard test scenes, seeds 950100-5
     seed=$((seed + 1))
   done
 }
-if [ "$part" = eval ]; then
-$R --seed 900000 --count 8 --size 128 --inputs 6 --targets 10 --out data/val128
+if [ "$part" = eval ] || [ "$part" = test ]; then
+[ "$part" = test ] || $R --seed 900000 --count 8 --size 128 --inputs 6 --targets 10 --out data/val128
 hard_tests 128 data/test128
 $R --seed 987000 --count 18 --size 128 --inputs 6 --targets 8 --out data/test128
 $R --seed 987000 --count 6 --size 256 --inputs 6 --targets 8 --out data/test256
@@ -43,6 +44,7 @@ $R --seed 987006 --count 12 --size 256 --inputs 6 --targets 8 --out data/test256
 hard_tests 256 data/test256
 exit 0
 fi
+[ "$part" = train ] || { echo "render_v2_data.sh: unknown part $part (eval, test, train)" >&2; exit 1; }
 for round in $(seq 0 $((${2:-40} - 1))); do
   $R --seed $((10000 + 60 * round)) --count 60 --size 128 --inputs 6 --targets 10 --out data/train128
   i=0

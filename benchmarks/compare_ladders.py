@@ -1,0 +1,67 @@
+"""Two ladder runs on the same scenes, paired target by target: ``B − A`` per row, size and
+view count, with a bootstrapped 95 % interval, and per scene type.
+
+``prosplat eval ladder`` pairs rows against the paste within one run; a new generator is
+scored in a run of its own (``--generator``), so its gain over the shipped one needs the two
+runs' ``ladder.json`` paired here. Targets are matched by (size, views, row, scene, target);
+the runs must have drawn the same inputs and targets (the same data and ``--seed``).
+
+    python benchmarks/compare_ladders.py runs/eval_v7/ladder/ladder.json \\
+        runs/eval_v8/ladder/ladder.json --rows generator enhanced
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import defaultdict
+from pathlib import Path
+
+from prosplat.ladder.stats import bootstrap_ci
+
+
+def _scores(path: Path) -> dict[tuple, dict]:
+    scores = json.loads(path.read_text())["scores"]
+    return {(s["size"], s["views"], s["rung"], s["scene"], s["target"]): s for s in scores}
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("a", type=Path, help="ladder.json of the reference run (A)")
+    p.add_argument("b", type=Path, help="ladder.json of the run compared with it (B)")
+    p.add_argument("--rows", nargs="+", default=["generator", "enhanced"])
+    args = p.parse_args(argv)
+    a, b = _scores(args.a), _scores(args.b)
+    common = sorted(k for k in a.keys() & b.keys() if k[2] in args.rows)
+    if not common:
+        raise SystemExit(f"no targets of rows {args.rows} in both {args.a} and {args.b}")
+    groups: dict[tuple, list[tuple]] = defaultdict(list)
+    for k in common:
+        groups[k[:3]].append(k)
+    print(f"B − A, paired on the same targets (A = {args.a}, B = {args.b})\n")
+    print("| size | views | row | n | A PSNR / LPIPS | B PSNR / LPIPS | Δ PSNR [95 %] | Δ LPIPS [95 %] |")
+    print("|---:|---:|---|---:|---:|---:|---:|---:|")
+    by_type: dict[tuple, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for (size, views, row), keys in groups.items():
+        dp = bootstrap_ci([b[k]["psnr"] - a[k]["psnr"] for k in keys])
+        dl = bootstrap_ci([b[k]["lpips"] - a[k]["lpips"] for k in keys])
+        mean = lambda run, m: sum(run[k][m] for k in keys) / len(keys)  # noqa: E731
+        print(
+            f"| {size} | {views} | {row} | {len(keys)} | {mean(a, 'psnr'):.2f} / "
+            f"{mean(a, 'lpips'):.3f} | {mean(b, 'psnr'):.2f} / {mean(b, 'lpips'):.3f} | "
+            f"{dp.mean:+.2f} [{dp.lo:+.2f}, {dp.hi:+.2f}] | "
+            f"{dl.mean:+.3f} [{dl.lo:+.3f}, {dl.hi:+.3f}] |"
+        )
+        for k in keys:
+            by_type[(size, views, row)][a[k]["scene_type"]].append(b[k]["psnr"] - a[k]["psnr"])
+    types = sorted({t for d in by_type.values() for t in d})
+    print("\nΔ PSNR per scene type\n")
+    print("| size | views | row | " + " | ".join(types) + " |")
+    print("|---:|---:|---|" + "---:|" * len(types))
+    for (size, views, row), d in by_type.items():
+        cells = [f"{sum(d[t]) / len(d[t]):+.2f}" if d[t] else "–" for t in types]
+        print(f"| {size} | {views} | {row} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
