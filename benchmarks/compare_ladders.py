@@ -25,6 +25,10 @@ def _scores(path: Path) -> dict[tuple, dict]:
     return {(s["size"], s["views"], s["rung"], s["scene"], s["target"]): s for s in scores}
 
 
+def _mean(run: dict[tuple, dict], keys: list[tuple], metric: str) -> float:
+    return sum(run[k][metric] for k in keys) / len(keys)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("a", type=Path, help="ladder.json of the reference run (A)")
@@ -39,16 +43,18 @@ def main(argv: list[str] | None = None) -> None:
     for k in common:
         groups[k[:3]].append(k)
     print(f"B − A, paired on the same targets (A = {args.a}, B = {args.b})\n")
-    print("| size | views | row | n | A PSNR / LPIPS | B PSNR / LPIPS | Δ PSNR [95 %] | Δ LPIPS [95 %] |")
+    print(
+        "| size | views | row | n | A PSNR / LPIPS | B PSNR / LPIPS | Δ PSNR [95 %] | Δ LPIPS [95 %] |"
+    )
     print("|---:|---:|---|---:|---:|---:|---:|---:|")
     by_type: dict[tuple, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for (size, views, row), keys in groups.items():
         dp = bootstrap_ci([b[k]["psnr"] - a[k]["psnr"] for k in keys])
         dl = bootstrap_ci([b[k]["lpips"] - a[k]["lpips"] for k in keys])
-        mean = lambda run, m: sum(run[k][m] for k in keys) / len(keys)  # noqa: E731
         print(
-            f"| {size} | {views} | {row} | {len(keys)} | {mean(a, 'psnr'):.2f} / "
-            f"{mean(a, 'lpips'):.3f} | {mean(b, 'psnr'):.2f} / {mean(b, 'lpips'):.3f} | "
+            f"| {size} | {views} | {row} | {len(keys)} | {_mean(a, keys, 'psnr'):.2f} / "
+            f"{_mean(a, keys, 'lpips'):.3f} | {_mean(b, keys, 'psnr'):.2f} / "
+            f"{_mean(b, keys, 'lpips'):.3f} | "
             f"{dp.mean:+.2f} [{dp.lo:+.2f}, {dp.hi:+.2f}] | "
             f"{dl.mean:+.3f} [{dl.lo:+.3f}, {dl.hi:+.3f}] |"
         )
