@@ -1,0 +1,55 @@
+"""benchmarks/compare_ladders.py: two ladder runs paired target by target."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_ladders.py"
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("compare_ladders", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _ladder(path: Path, shift: float, types: dict[str, str]) -> Path:
+    scores = [
+        dict(
+            rung=rung, size=64, views=4, scene=scene, scene_type=kind, target=t,
+            psnr=15.0 + t + shift * (kind == "room"), lpips=0.2 - 0.01 * shift,
+        )
+        for rung in ("generator", "enhanced", "MORI paste")
+        for scene, kind in types.items()
+        for t in range(4)
+    ]  # fmt: skip
+    path.write_text(json.dumps({"scores": scores}))
+    return path
+
+
+def test_pairs_targets_and_splits_by_scene_type(tmp_path: Path, capsys) -> None:
+    types = {"room_1": "room", "open_2": "open"}
+    a = _ladder(tmp_path / "a.json", 0.0, types)
+    b = _ladder(tmp_path / "b.json", 1.0, types)  # +1 dB on rooms only, LPIPS -0.01 everywhere
+    _module().main([str(a), str(b)])
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| 64 | 4 | enhanced | 8 "))
+    assert "+0.50 [" in row  # half the targets gain 1 dB
+    assert "-0.010 [-0.010, -0.010]" in row
+    assert "MORI paste" not in out  # only the rows asked for
+    per_type = next(
+        line for line in out.splitlines()[-3:] if line.startswith("| 64 | 4 | enhanced |")
+    )
+    assert per_type.split("|")[4:6] == [" +0.00 ", " +1.00 "]  # open, room
+
+
+def test_runs_without_common_targets_are_refused(tmp_path: Path) -> None:
+    a = _ladder(tmp_path / "a.json", 0.0, {"room_1": "room"})
+    b = _ladder(tmp_path / "b.json", 0.0, {"open_2": "open"})
+    with pytest.raises(SystemExit, match="no targets"):
+        _module().main([str(a), str(b)])
