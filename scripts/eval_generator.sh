@@ -10,7 +10,9 @@
 #            (benchmarks/enhance_views.py --inputs-too)
 #   fox      real photos: refine 300 + enhance at 64 px (prosplat eval posed; needs
 #            data/outside/fox from scripts/outside_data.sh)
-# Data: scripts/render_v2_data.sh eval (data/test128, data/test256). Stage 2: the shipped one.
+# Data: scripts/render_v2_data.sh test (data/test128, data/test256). Stage 2: the shipped one.
+# Pair two names' ladders with benchmarks/compare_ladders.py runs/eval_A/ladder/ladder.json
+# runs/eval_B/ladder/ladder.json (a part run again writes ladder-2/, never over the first).
 #   scripts/eval_generator.sh NAME WEIGHTS PART...     e.g.
 #   scripts/eval_generator.sh v7 runs/generator_v7.safetensors depth ladder
 set -euo pipefail
