@@ -49,7 +49,8 @@ def main(argv: list[str] | None = None) -> None:
     print("|---:|---:|---|---:|---:|---:|---:|---:|")
     by_type: dict[tuple, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for (size, views, row), keys in groups.items():
-        dp = bootstrap_ci([b[k]["psnr"] - a[k]["psnr"] for k in keys])
+        d_psnr = [b[k]["psnr"] - a[k]["psnr"] for k in keys]
+        dp = bootstrap_ci(d_psnr)
         dl = bootstrap_ci([b[k]["lpips"] - a[k]["lpips"] for k in keys])
         print(
             f"| {size} | {views} | {row} | {len(keys)} | {_mean(a, keys, 'psnr'):.2f} / "
@@ -58,8 +59,8 @@ def main(argv: list[str] | None = None) -> None:
             f"{dp.mean:+.2f} [{dp.lo:+.2f}, {dp.hi:+.2f}] | "
             f"{dl.mean:+.3f} [{dl.lo:+.3f}, {dl.hi:+.3f}] |"
         )
-        for k in keys:
-            by_type[(size, views, row)][a[k]["scene_type"]].append(b[k]["psnr"] - a[k]["psnr"])
+        for k, d in zip(keys, d_psnr, strict=True):
+            by_type[(size, views, row)][a[k]["scene_type"]].append(d)
     types = sorted({t for d in by_type.values() for t in d})
     print("\nΔ PSNR per scene type\n")
     print("| size | views | row | " + " | ".join(types) + " |")
