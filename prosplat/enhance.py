@@ -36,15 +36,17 @@ from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import warp_for
 from prosplat.render import render
+from prosplat.render.hole_fill import fill_colour
 
 
 @dataclass
 class EnhancedView:
     """One rendered (and possibly enhanced) view.
 
-    ``image`` [3,H,W] is the enhanced image (the raw render when not enhanced); ``raw``
-    [3,H,W] the rasterizer's image; ``alpha``/``depth`` [H,W]; ``reference`` the index of the
-    input camera MORI chose (None when not enhanced); ``timings`` in milliseconds.
+    ``image`` [3,H,W] is the enhanced image (the raw render when not enhanced; its holes
+    filled when :func:`render_view` was asked to); ``raw`` [3,H,W] the rasterizer's image;
+    ``alpha``/``depth`` [H,W]; ``reference`` the index of the input camera MORI chose (None
+    when not enhanced); ``timings`` in milliseconds.
     """
 
     image: Tensor
@@ -228,20 +230,34 @@ def render_view(
     background: Tensor | None = None,
     dtype: torch.dtype = torch.float32,
     options: EnhanceOptions | None = None,
+    fill_holes: bool = False,
 ) -> EnhancedView:
     """Render ``camera`` and, when ``improver`` is given, enhance it with the MORI reference
     chosen among ``cameras`` (whose images are ``images [N,3,H,W]``).
 
     ``options`` (default :class:`EnhanceOptions`) sets the working size and the guard; a
-    guarded view returns the raw render as ``image`` with the reason in ``guard``."""
+    guarded view returns the raw render as ``image`` with the reason in ``guard``.
+    ``fill_holes``: the holes no input saw show the pull-push continuation of the render's
+    own colours (:mod:`prosplat.render.hole_fill`) instead of black: a raw ``image`` (no
+    ``improver``, or the guard kept it) is composited over that fill, an enhanced one is
+    blended with it by the render's alpha (``α · enhanced + (1 − α) · fill``: stage 2 kept
+    where the Gaussians cover the view). ``raw`` stays the render on black, which is what
+    stage 2 takes. Not with a ``background``."""
     options = options or EnhanceOptions()
+    if fill_holes and background is not None:
+        raise ValueError(
+            "fill_holes fills the holes of a render on black; pass a background or "
+            "fill_holes=True, not both"
+        )
     t0 = time.perf_counter()
     with torch.no_grad():
         out = render(gaussians, camera, background=background)
     t1 = time.perf_counter()
     timings = {"render_ms": 1e3 * (t1 - t0)}
+    fill = fill_colour(out.rgb, out.alpha) if fill_holes else None  # [3,H,W]
+    shown = out.rgb if fill is None else out.rgb + (1 - out.alpha) * fill  # [3,H,W]
     if improver is None:
-        return EnhancedView(out.rgb, out.rgb, out.alpha, out.depth, None, timings)
+        return EnhancedView(shown, out.rgb, out.alpha, out.depth, None, timings)
     if images is None or cameras is None or len(cameras) == 0:
         raise ValueError("enhancing needs the input images and cameras (MORI picks a reference)")
     cameras = list(cameras)
@@ -273,5 +289,7 @@ def render_view(
     timings.update(mori_ms=1e3 * (t2 - t1), enhance_ms=1e3 * (t3 - t2))
     reason = guard_reason(out.rgb, image, out.alpha, options) if options.guard else None
     if reason is not None:
-        image = out.rgb
+        image = shown
+    elif fill is not None:
+        image = out.alpha * image + (1 - out.alpha) * fill
     return EnhancedView(image, out.rgb, out.alpha, out.depth, ref, timings, reason)

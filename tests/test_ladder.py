@@ -509,3 +509,43 @@ def test_compare_improve_scores_several_stage2_models_on_one_reconstruction(data
     )
     with pytest.raises(ValueError, match="LABEL=PATH"):
         build_rungs(["enhanced"], LadderContext({"compare_improve": ["nolabel"]}))
+
+
+def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
+    """``--rows fill``: ``generator filled`` is the generator's render composited over the
+    pull-push fill of its holes, ``enhanced filled`` stage 2's view blended with that fill by
+    the render's alpha; both share the generator's reconstruction and are scored closer to
+    the target than black holes where the render leaves any."""
+    from prosplat.render.hole_fill import fill_colour, fill_holes
+
+    rungs = {r.name: r for r in build_rungs(["generator", "enhanced", "fill"], LadderContext({}))}
+    assert list(rungs) == ["generator", "enhanced", "generator filled", "enhanced filled"]
+    assert rungs["generator filled"].shares == rungs["enhanced filled"].shares == "generator"
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    g = rungs["generator"].reconstruct(inp)
+    t = scene.target_indices[0]
+    target = scene.cameras[t]
+    wide = Camera(target.K * torch.tensor([[0.3], [0.3], [1.0]]), target.world_to_cam,
+                  target.width, target.height)  # sees past what the inputs saw: holes  # fmt: skip
+    for cam in (target, wide):
+        raw = rungs["generator"].view(g, cam, inp)
+        enh = rungs["enhanced"].view(g, cam, inp).image
+        filled = rungs["generator filled"].view(g, cam, inp).image
+        both = rungs["enhanced filled"].view(g, cam, inp).image
+        assert torch.allclose(filled, fill_holes(raw.image, raw.alpha), atol=1e-6)
+        fill = fill_colour(raw.image, raw.alpha)
+        assert torch.allclose(both, raw.alpha * enh + (1 - raw.alpha) * fill, atol=1e-5)
+    hole = raw.alpha < 0.01  # the wide view's
+    assert 0.05 < float(hole.float().mean()) < 0.95
+    assert (raw.image[:, hole] <= 0.01).all()  # (nearly) black on its own
+    drawn = raw.alpha > 0  # the fill is an alpha-weighted mean of these pixels' own colours
+    seen = raw.image[:, drawn] / raw.alpha[drawn]
+    inside = (filled[:, hole] >= seen.min(1, keepdim=True).values - 1e-5) & (
+        filled[:, hole] <= seen.max(1, keepdim=True).values + 1e-5
+    )
+    assert inside.all() and filled[:, hole].sum(0).gt(0.05).float().mean() > 0.9
+    # without an improvement model the raw row alone
+    only = build_rungs(["fill"], LadderContext({"improve": False}))
+    assert [r.name for r in only] == ["generator filled"]

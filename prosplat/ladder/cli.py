@@ -17,7 +17,7 @@ from pathlib import Path
 
 #: the rows run by default (per-scene optimisation joins when --opt-steps is given)
 DEFAULT_ROWS = (
-    "flat", "paste", "optimize", "generator", "enhanced", "warp", "refine", "distill",
+    "flat", "paste", "optimize", "generator", "enhanced", "fill", "warp", "refine", "distill",
     "true-depth", "depthsplat",
 )  # fmt: skip
 

@@ -213,13 +213,17 @@ def paste_rungs(ctx: LadderContext) -> list[Rung]:
 # ---- Gaussians -----------------------------------------------------------------------------
 
 
-def splat_view(gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None) -> View:
-    """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference)."""
+def splat_view(
+    gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False
+) -> View:
+    """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference);
+    ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`)."""
     from prosplat.enhance import render_view
 
     out = render_view(
-        gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32
-    )
+        gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32,
+        fill_holes=fill_holes,
+    )  # fmt: skip
     return View(
         out.image,
         out.depth,
@@ -286,6 +290,30 @@ def enhanced_rungs(ctx: LadderContext) -> list[Rung]:
     recon = _generator_gaussians(ctx)
     return [
         Rung(f"enhanced{suffix}", recon, _enhanced_view(imp, dtype), "generator", depth=True)
+        for suffix, imp in improvers.items()
+    ]
+
+
+def _filled_view(improver=None, dtype=None) -> Callable[[Any, Camera, SceneInputs], View]:
+    def view(g, cam: Camera, inp: SceneInputs) -> View:
+        return splat_view(g, cam, inp, improver, dtype, fill_holes=True)
+
+    return view
+
+
+@register("fill")
+def fill_rungs(ctx: LadderContext) -> list[Rung]:
+    """The holes no input saw filled from the render's own colours
+    (:mod:`prosplat.render.hole_fill`) instead of black: ``generator filled`` (the raw
+    render composited over the fill; no learning, so it sits between the raw and the
+    enhanced rows) and, per improvement model, ``enhanced filled`` (stage 2's view blended
+    with the fill by the render's alpha), what ``ProSplat.render(..., fill_holes=True)``
+    returns."""
+    recon, dtype = _generator_gaussians(ctx), _dtype(ctx)
+    rungs = [Rung("generator filled", recon, _filled_view(), "generator", depth=True)]
+    improvers = ctx.improvers("enhanced filled")  # {} without an improvement model
+    return rungs + [
+        Rung(f"enhanced filled{suffix}", recon, _filled_view(imp, dtype), "generator", depth=True)
         for suffix, imp in improvers.items()
     ]
 

@@ -1,0 +1,129 @@
+"""prosplat.render.hole_fill: covered pixels untouched, holes continued from their
+surroundings (against a brute-force nearest-covered-pixel reference), partial coverage
+completed by ``over``, any size and batch, and the wiring into render_view and the ladder."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from prosplat.camera import Camera
+from prosplat.enhance import render_view
+from prosplat.gaussians import Gaussians
+from prosplat.render import render
+from prosplat.render.hole_fill import fill_holes
+
+
+def _nearest_covered(rgb: torch.Tensor, covered: torch.Tensor) -> torch.Tensor:
+    """Brute force: every pixel takes the colour of its nearest covered pixel."""
+    h, w = covered.shape
+    ys, xs = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    pts = torch.stack([ys[covered], xs[covered]], -1).float()  # [M,2]
+    grid = torch.stack([ys, xs], -1).reshape(-1, 1, 2).float()  # [HW,1,2]
+    nearest = ((grid - pts[None]) ** 2).sum(-1).argmin(1)  # [HW]
+    return rgb[:, covered][:, nearest].reshape(3, h, w)
+
+
+def test_covered_pixels_are_unchanged_and_a_constant_render_fills_constant():
+    rgb = torch.zeros(3, 40, 56)
+    alpha = torch.zeros(40, 56)
+    alpha[5:30, 10:40] = 1
+    colour = torch.tensor([0.2, 0.5, 0.9])
+    rgb[:, 5:30, 10:40] = colour[:, None, None]
+    out = fill_holes(rgb, alpha)
+    assert torch.equal(out[:, 5:30, 10:40], rgb[:, 5:30, 10:40])
+    assert torch.allclose(out, colour[:, None, None].expand_as(out), atol=1e-6)
+
+
+def test_a_hole_blends_from_the_side_it_is_nearest():
+    """Left red, right blue, a black gap between: across the gap the fill goes from red to
+    blue monotonically, each hole pixel leaning to the side it is nearest (the sign of the
+    brute-force nearest-covered fill), symmetric about the middle."""
+    h, w = 32, 64
+    rgb = torch.zeros(3, h, w)
+    rgb[0, :, :24] = 1.0  # red on the left
+    rgb[2, :, 40:] = 1.0  # blue on the right
+    alpha = torch.ones(h, w)
+    alpha[:, 24:40] = 0
+    out = fill_holes(rgb, alpha)
+    lean = (out[0] - out[2])[:, 24:40]  # [H,16] red minus blue in the gap
+    ref = _nearest_covered(rgb, alpha > 0.5)
+    assert torch.equal(torch.sign(lean), torch.sign((ref[0] - ref[2])[:, 24:40]))
+    profile = lean.mean(0)
+    assert (profile.diff() < 0).all()  # red -> blue, no ringing
+    assert torch.allclose(profile, -profile.flip(0), atol=1e-5)
+    assert out.min() >= 0 and out.max() <= 1  # never outside the render's own colours
+
+
+def test_partial_coverage_is_completed_over_the_fill():
+    h, w = 16, 16
+    colour = torch.tensor([0.8, 0.4, 0.1])
+    alpha = torch.full((h, w), 0.25)
+    rgb = colour[:, None, None] * alpha  # premultiplied over black
+    out = fill_holes(rgb, alpha)
+    # everything the render saw has the one colour, so the completed pixel is that colour
+    assert torch.allclose(out, colour[:, None, None].expand(3, h, w), atol=1e-5)
+
+
+def test_nothing_covered_stays_black_and_shapes_are_checked():
+    out = fill_holes(torch.zeros(3, 8, 8), torch.zeros(8, 8))
+    assert torch.equal(out, torch.zeros(3, 8, 8))
+    with pytest.raises(ValueError, match="rgb must be"):
+        fill_holes(torch.zeros(8, 8), torch.zeros(8, 8))
+    with pytest.raises(ValueError, match="does not match"):
+        fill_holes(torch.zeros(3, 8, 8), torch.zeros(4, 4))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    h=st.integers(1, 37),
+    w=st.integers(1, 37),
+    b=st.integers(1, 3),
+    seed=st.integers(0, 2**16),
+)
+def test_any_size_and_batch_matches_one_at_a_time(h, w, b, seed):
+    g = torch.Generator().manual_seed(seed)
+    alpha = (torch.rand(b, 1, h, w, generator=g) > 0.6).float() * torch.rand(
+        b, 1, h, w, generator=g
+    )
+    rgb = torch.rand(b, 3, h, w, generator=g) * alpha
+    out = fill_holes(rgb, alpha)
+    assert out.shape == rgb.shape and torch.isfinite(out).all()
+    assert out.min() >= 0 and out.max() <= 1 + 1e-6
+    for i in range(b):
+        assert torch.allclose(out[i], fill_holes(rgb[i], alpha[i, 0]), atol=1e-6)
+    full = alpha >= 1
+    assert torch.equal(out.expand_as(rgb)[full.expand_as(rgb)], rgb[full.expand_as(rgb)])
+
+
+def _half_scene():
+    """A wall of Gaussians that covers only the left half of a camera's view."""
+    cam = Camera.look_at((0.0, 0.0, -3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, 48, 32)
+    ys, xs = torch.meshgrid(torch.linspace(-1, 1, 24), torch.linspace(-1.3, 0.0, 24), indexing="ij")
+    means = torch.stack([xs, ys, torch.zeros_like(xs)], -1).reshape(-1, 3)
+    n = len(means)
+    colour = torch.tensor([0.9, 0.3, 0.2])
+    g = Gaussians(
+        means,
+        torch.tensor([1.0, 0, 0, 0]).expand(n, 4).clone(),
+        torch.full((n, 3), 0.06),
+        torch.full((n,), 0.99),
+        ((colour - 0.5) / 0.28209479177387814)[None, None].expand(n, 1, 3).clone(),
+    )
+    return g, cam
+
+
+def test_render_view_fills_only_the_shown_raw_image():
+    g, cam = _half_scene()
+    raw = render(g, cam)
+    view = render_view(g, cam, fill_holes=True)
+    assert torch.equal(view.raw, raw.rgb)  # stage 2's input stays the render on black
+    hole = raw.alpha < 0.01
+    assert hole.any() and (view.image[:, hole] > 0.1).all()  # the hole shows the wall's colour
+    assert torch.allclose(view.image[:, ~hole], fill_holes(raw.rgb, raw.alpha)[:, ~hole])
+    plain = render_view(g, cam)
+    assert torch.equal(plain.image, raw.rgb)  # off by default: the rasterizer's image
+    with pytest.raises(ValueError, match="not both"):
+        render_view(g, cam, background=torch.ones(3), fill_holes=True)
