@@ -35,6 +35,7 @@ from prosplat.improve.pattern import fixed_pattern_score, lattice_score
 from prosplat.improve.warp import warp_for
 from prosplat.metrics import LPIPS, psnr
 from prosplat.render import render
+from prosplat.render.hole_fill import fill_holes
 
 
 def _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args) -> dict:
@@ -53,6 +54,12 @@ def _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args) ->
         d = torch.stack(depths)
         row["raw"] = flicker(torch.stack(raw), d, path)
         row[label] = flicker(torch.stack(frames), d, path)
+        if args.fill_holes:  # the same path with the holes filled (render_view fill_holes)
+            views = [render_view(g, cam, inp_images, inp_cams, improver, fill_holes=True)
+                     for cam in path]  # fmt: skip
+            filled = torch.stack([fill_holes(v.raw, v.alpha) for v in views])
+            row["raw filled"] = flicker(filled, d, path)
+            row[f"{label} filled"] = flicker(torch.stack([v.image for v in views]), d, path)
         if args.distill_steps:  # the path's enhanced frames fitted into the Gaussians
             views = torch.stack(frames).clamp(0, 1)  # the frames just enhanced, fitted as they are
             fitted = distill(
@@ -232,6 +239,12 @@ def main(argv: list[str] | None = None) -> int:
         "--inputs-too",
         action="store_true",
         help="also score re-rendered input cameras (reported apart from the targets)",
+    )
+    p.add_argument(
+        "--fill-holes",
+        action="store_true",
+        help="also the flicker of the raw and enhanced paths with their holes filled "
+        "(prosplat.render.hole_fill), each against the raw renders' flicker",
     )
     p.add_argument("--scenes", type=int, default=None, help="at most N scenes per root")
     p.add_argument("--out", type=Path, required=True)

@@ -9,8 +9,10 @@ PSNR / SSIM / LPIPS (:mod:`prosplat.metrics`):
 * ``flat``: one colour everywhere, the mean colour of the input images;
 * ``paste``: the input MORI picks as the reference, resampled to the target's size, as is;
 * ``generator``: the generator's render; ``enhanced``: that render after stage 2;
+* ``generator filled``: the generator's render with the holes no input saw filled from its
+  own colours (:mod:`prosplat.render.hole_fill`; sets on a black background only);
 * with ``--refine-steps`` / ``--refine-seconds``, also ``refined`` and ``refined enhanced``:
-  the same generator Gaussians refined against the inputs, so one run shows what refinement
+  (and ``refined filled``) the same generator Gaussians refined against the inputs, so one run shows what refinement
   buys on the user's own images (the ladder's rows, on data no ProSplat scene generator made).
 
 ``views.png`` shows the first targets side by side (ground truth, then each row's image), so
@@ -34,6 +36,7 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.evaluate import Score, markdown_table, score_view, summarise
+from prosplat.render.hole_fill import fill_holes
 
 __all__ = [
     "ROWS",
@@ -45,7 +48,8 @@ __all__ = [
     "write_results",
 ]
 
-ROWS = ("flat", "paste", "generator", "enhanced", "refined", "refined enhanced")
+ROWS = ("flat", "paste", "generator", "generator filled", "enhanced", "refined", "refined filled",
+        "refined enhanced")  # fmt: skip
 #: targets shown in ``views.png``
 SHEET_TARGETS = 8
 
@@ -96,11 +100,14 @@ def score_cases(
     every case. The generator's Gaussians are pruned to ``budget`` as everywhere else;
     ``reconstruct_kwargs`` (refinement: ``refine_steps`` or ``refine_seconds``) add the
     ``refined`` rows, from ``model.reconstruct``. ``enhanced`` rows need ``model.improver``;
-    without one they are left out. ``sheet``, when given, receives one list of images per
+    without one they are left out. The ``filled`` rows (the raw render's holes filled from
+    its own colours, :mod:`prosplat.render.hole_fill`) need a black ``background`` (None or
+    zeros). ``sheet``, when given, receives one list of images per
     target (ground truth, then each prediction in :data:`ROWS` order) for a contact sheet."""
 
     rows: list[Score] = []
     enhance = model.improver is not None
+    fill = background is None or not bool(torch.as_tensor(background).any())
     for case in cases:
         images, cams = case.images, list(case.cameras)
         n = len(cams)
@@ -124,6 +131,11 @@ def score_cases(
                                     background=background, dtype=dtype)  # fmt: skip
                 t = view.timings
                 preds.append((raw_name, view.raw, recon_s, t["render_ms"], len(g)))
+                if fill:
+                    t4 = time.perf_counter()
+                    filled = fill_holes(view.raw, view.alpha)
+                    ms = t["render_ms"] + 1e3 * (time.perf_counter() - t4)
+                    preds.append((f"{raw_name} filled", filled, recon_s, ms, len(g)))
                 if enhance:
                     ms = t["render_ms"] + t["mori_ms"] + t["enhance_ms"]
                     preds.append((enhanced_name, view.image, recon_s, ms, len(g)))

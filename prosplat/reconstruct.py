@@ -130,6 +130,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "indices of frames, or a camera path (a transforms.json of pinhole cameras)",
     )
     p.add_argument(
+        "--fill-holes",
+        action="store_true",
+        help="where no input saw the scene, continue the render's own colours instead of "
+        "black (prosplat.render.hole_fill): writes NAME_filled.png beside NAME_raw.png, and "
+        "the enhanced renders blend with that fill where the Gaussians do not cover them; "
+        "not for sets composited over a background",
+    )
+    p.add_argument(
         "--max-renders",
         type=int,
         default=8,
@@ -344,6 +352,7 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     from prosplat.image_io import write_image
     from prosplat.ply import write_ply
     from prosplat.posed_views import load_views, view_camera
+    from prosplat.render.hole_fill import fill_holes as hole_fill
 
     t_start = time.perf_counter()
     out = out_folder(args.out, args.overwrite)
@@ -358,6 +367,12 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
         raise ValueError(
             "--distill-steps fits the enhanced renders: it needs an improvement model and "
             "cameras to render (--render)"
+        )
+    fill = getattr(args, "fill_holes", False)
+    if fill and bool(torch.as_tensor(background).any()):
+        raise ValueError(
+            f"--fill-holes continues renders on black, but this set is composited over "
+            f"{bg_text}; leave --fill-holes out (the background already fills the holes)"
         )
     images, cameras = load_views(posed, inputs, size, background, progress=True)
     near, far, nf_source = near_far(posed, inputs, cameras, args.near, args.far)
@@ -385,8 +400,14 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
         (out / "renders").mkdir(exist_ok=True)
     for name, cam, kind in tqdm(todo, desc="rendering + enhancing", unit="view", disable=not todo):
         enhance = model.improver is not None
-        r = model.render(g, cam, images, cameras, enhance=enhance, background=background)
+        r = model.render(  # a black background is the render's own: the fill goes over it
+            g, cam, images, cameras, enhance=enhance, fill_holes=fill,
+            background=None if fill else background,
+        )  # fmt: skip
         write_image(out / "renders" / f"{name}_raw.png", r.raw, overwrite=args.overwrite)
+        if fill:
+            filled = hole_fill(r.raw, r.alpha)
+            write_image(out / "renders" / f"{name}_filled.png", filled, overwrite=args.overwrite)
         if enhance:
             write_image(out / "renders" / f"{name}_enhanced.png", r.image, overwrite=args.overwrite)
             enhanced.append((cam, r.image))

@@ -42,8 +42,9 @@ fi
 DATA_SETS="$DATA_SETS${EXTRA_SETS:+,$EXTRA_SETS}"
 SUB=()
 [ "${SUBPIXEL:-1}" = 0 ] || SUB=(--subpixel-shift)
+read -r -a extra <<< "${EXTRA_ARGS:-}"  # more `prosplat train improve` flags, e.g. --fill
 OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train improve \
   --data "$DATA_SETS" --out "$OUT" --init "$INIT" \
   --warp --padding replicate --alpha --crop 48 --flip --steps "${1:-2000}" --batch 8 \
   --lr 1e-4 --warmup 100 --lpips-weight "${LPIPS:-0.5}" --shift-weight "${SHIFT:-10}" \
-  "${SUB[@]}" --working-size 256 --save-every 100 --log-every 50
+  "${SUB[@]}" --working-size 256 --save-every 100 --log-every 50 "${extra[@]}"

@@ -264,3 +264,35 @@ def test_load_improver_can_drop_the_reference(tmp_path) -> None:
     with torch.no_grad():
         out = bare(torch.rand(1, 3, 32, 32))
     assert out.shape == (1, 3, 32, 32) and torch.isfinite(out).all()
+
+
+def test_fill_input_enhances_the_filled_render(tmp_path) -> None:
+    """``fill_input``: the model sees (and adds its residual to) the render with its holes
+    filled from its own colours; the same weights loaded with ``fill_input=True`` give
+    exactly the plain model's output on the filled render, and without alpha the render is
+    taken as covered (no fill). An untrained fill model returns the filled render."""
+    from prosplat.render.hole_fill import fill_holes
+
+    torch.manual_seed(0)
+    plain = ImproveModel(SMALL.with_(alpha_input=True)).eval()
+    x = torch.rand(2, 3, 32, 32)
+    alpha = torch.ones(2, 1, 32, 32)
+    alpha[:, :, :, 20:] = 0  # a hole on the right: black in the render
+    x = x * alpha
+    ref = torch.rand(2, 3, 32, 32)
+    a, b = _pair()
+    f = torch.stack([fundamental_matrix(a, b)] * 2).float()
+    filled = fill_holes(x, alpha)
+    with torch.no_grad():
+        assert torch.allclose(ImproveModel(SMALL.with_(fill_input=True)).eval()(x, ref, f, alpha),
+                              filled, atol=1e-6)  # fmt: skip
+        _perturb(plain)
+        path = save_improver(plain, tmp_path / "plain.safetensors")
+        fill = load_improver(path, fill_input=True)
+        assert fill.config.fill_input and not plain.config.fill_input
+        want = plain(filled, ref, f, alpha)
+        assert torch.allclose(fill(x, ref, f, alpha), want, atol=1e-6)
+        assert not torch.allclose(plain(x, ref, f, alpha), want, atol=1e-3)  # it matters
+        assert torch.allclose(fill(x, ref, f), plain(x, ref, f), atol=1e-6)  # no alpha: no fill
+    again = load_improver(save_improver(fill, tmp_path / "fill.safetensors"))
+    assert again.config.fill_input  # the weights say how to use them

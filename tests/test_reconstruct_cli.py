@@ -200,7 +200,7 @@ def test_eval_posed_scores_the_rows_and_shows_them(colmap_text, tmp_path, capsys
     out = tmp_path / "eval"
     assert cli("eval", "posed", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
                "--targets", "2") == 0  # fmt: skip
-    plain = ROWS[:4]  # flat, paste, generator, enhanced: no refinement asked for
+    plain = ROWS[:5]  # flat, paste, generator (filled), enhanced: no refinement asked for
     table = capsys.readouterr().out
     for row in ROWS:
         assert (f"| {row} |" in table) == (row in plain), row
@@ -210,8 +210,8 @@ def test_eval_posed_scores_the_rows_and_shows_them(colmap_text, tmp_path, capsys
     summary = json.loads((out / "scores.json").read_text())["summary"]
     assert [s["method"] for s in summary] == list(plain)
     assert (out / "summary.md").read_text().strip() in table
-    # views.png: 2 targets x (ground truth + 4 rows) of 32x32 with 2-px gaps
-    assert read_image(out / "views.png").shape == (3, 2 * 34 - 2, 5 * 34 - 2)
+    # views.png: 2 targets x (ground truth + 5 rows) of 32x32 with 2-px gaps
+    assert read_image(out / "views.png").shape == (3, 2 * 34 - 2, 6 * 34 - 2)
     assert cli("eval", "posed", colmap_text, "--out", out, "--size", "32") == 2  # never clobbers
 
     out = tmp_path / "refined"
@@ -221,7 +221,7 @@ def test_eval_posed_scores_the_rows_and_shows_them(colmap_text, tmp_path, capsys
     by = {s["method"]: s for s in summary}
     assert list(by) == list(ROWS)
     assert by["refined"]["recon_s"] > 0 and by["refined"]["gaussians"] > 0
-    assert read_image(out / "views.png").shape == (3, 32, 7 * 34 - 2)
+    assert read_image(out / "views.png").shape == (3, 32, 9 * 34 - 2)
 
 
 def test_score_cases_flat_and_paste_rows():
@@ -234,8 +234,11 @@ def test_score_cases_flat_and_paste_rows():
     case = PosedCase(images, cams, images[:1], cams[:1], 1.0, 10.0, "unit")
     rows = score_cases(model, [case])
     by = {r.method: r for r in rows}
-    assert list(by) == ["flat", "paste", "generator"]
+    assert list(by) == ["flat", "paste", "generator", "generator filled"]
     assert by["paste"].psnr == pytest.approx(100.0)
+    # the same Gaussians, shown with their holes filled (random images: no better or worse)
+    assert by["generator filled"].gaussians == by["generator"].gaussians
+    assert 0 < by["generator filled"].psnr < 100
     flat = images.mean(dim=(0, 2, 3))[:, None, None].expand(3, 32, 32)
     assert by["flat"].psnr == pytest.approx(float(psnr(flat, images[0])), abs=1e-4)
     assert by["generator"].psnr < 100 and by["generator"].gaussians > 0
@@ -307,7 +310,7 @@ def test_eval_posed_with_a_separate_target_set(tmp_path, capsys):
     assert cli("eval", "posed", train, "--out", out, "--size", "32", "--num-inputs", "3",
                "--target-set", test) == 0  # fmt: skip
     rows = list(csv.DictReader(open(out / "scores.csv")))
-    assert len(rows) == 2 * 4 and {r["views"] for r in rows} == {"3"}
+    assert len(rows) == 2 * 5 and {r["views"] for r in rows} == {"3"}  # 5 rows, filled too
     capsys.readouterr()
     assert cli("eval", "posed", train, "--out", tmp_path / "e2", "--size", "32",
                "--num-inputs", "3") == 2  # no held-out frame left, and no target set  # fmt: skip
@@ -317,4 +320,27 @@ def test_eval_posed_with_a_separate_target_set(tmp_path, capsys):
     assert cli("eval", "posed", train, "--out", tmp_path / "e3", "--size", "32", "--num-inputs",
                "3", "--target-set", test, "--skip-missing") == 0  # fmt: skip
     assert "left out 1 frames" in capsys.readouterr().out
-    assert len(list(csv.DictReader(open(tmp_path / "e3" / "scores.csv")))) == 1 * 4
+    assert len(list(csv.DictReader(open(tmp_path / "e3" / "scores.csv")))) == 1 * 5
+
+
+def test_fill_holes_writes_filled_renders_beside_the_raw_ones(colmap_text, tmp_path, capsys):
+    """--fill-holes: NAME_filled.png is NAME_raw.png completed over the pull-push fill (same
+    where the render is opaque, never darker), the raw render is kept as it was; a set
+    composited over white refuses the flag."""
+    out = tmp_path / "out"
+    assert cli("reconstruct", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
+               "--max-renders", "2", "--fill-holes") == 0  # fmt: skip
+    names = sorted(p.name for p in (out / "renders").iterdir())
+    assert names == [f"00{i}_{k}.png" for i in (1, 2) for k in ("enhanced", "filled", "raw")]
+    raw = read_image(out / "renders" / "001_raw.png")
+    filled = read_image(out / "renders" / "001_filled.png")
+    assert raw.shape == filled.shape == (3, 32, 32)
+    assert (filled >= raw - 2 / 255).all()  # over black: the fill only adds light
+    plain = tmp_path / "plain"
+    assert cli("reconstruct", colmap_text, "--out", plain, "--size", "32", "--num-inputs", "2",
+               "--max-renders", "2") == 0  # fmt: skip
+    assert torch.equal(read_image(plain / "renders" / "001_raw.png"), raw)
+    capsys.readouterr()
+    assert cli("reconstruct", colmap_text, "--out", tmp_path / "white", "--size", "32",
+               "--background", "white", "--fill-holes") == 2  # fmt: skip
+    assert "--fill-holes" in _one_line_error(capsys, "reconstruct")

@@ -133,3 +133,23 @@ def test_generator_v8_default_scenes_are_v7s(root: Path) -> None:
     assert r.returncode != 0
     assert "no scene with seed 10003" in r.stderr
     assert not (root / "data" / "gen_v6").exists()
+
+
+@pytest.mark.parametrize("arm, fill", [("fill", True), ("ctrl", False)])
+def test_stage2_v16_arms_differ_only_by_the_fill(root: Path, arm: str, fill: bool) -> None:
+    """ARM=fill fine-tunes v13 with --fill, ARM=ctrl the same without it: same sets, same
+    recipe, each in its own run folder; another ARM is refused before any work."""
+    (root / "runs" / "s2v16").mkdir(parents=True)
+    (root / "runs" / "s2v16" / "v13.safetensors").write_bytes(b"")  # shipped_before keeps it
+    r = _run_script(root, "train_stage2_v16.sh", {"ARM": arm}, "7")
+    assert r.returncode == 0, r.stderr
+    train = next(line.split() for line in r.stdout.splitlines() if "train improve" in line)
+    assert train[train.index("--init") + 1] == "runs/s2v16/v13.safetensors"
+    assert train[train.index("--out") + 1] == f"runs/s2v16/{arm}"
+    assert train[train.index("--steps") + 1] == "7"
+    assert train[train.index("--lpips-weight") + 1] == "0.5"
+    sets = train[train.index("--data") + 1].split(",")
+    assert sets == ["runs/s2v16/sets/raw64.safetensors", "runs/s2v16/sets/raw128.safetensors"]
+    assert ("--fill" in train) == fill and "--alpha" in train and "--warp" in train
+    bad = _run_script(root, "train_stage2_v16.sh", {"ARM": "both"})
+    assert bad.returncode == 1 and "ARM must be fill or ctrl" in bad.stderr

@@ -77,6 +77,12 @@ class ImproveConfig:
             convolution added to its first features. DWEA sees the reference only at the
             bottleneck; the warp puts its texture on the pixel it belongs to. Zero-initialised:
             weights without it load and behave the same (``load_improver(warp_input=True)``).
+        fill_input: the render's holes (where alpha < 1) are filled by pull-push from its own
+            colours (:mod:`prosplat.render.hole_fill`) before the model sees it, and the
+            residual is added to that filled render: the model corrects a continuation of
+            the scene instead of painting on black. No weights of its own: a model trained
+            without it loads with it (``load_improver(fill_input=True)``) to be fine-tuned.
+            Needs the alpha at run time (without it the render is taken as fully covered).
         padding: how every padded convolution extends the image: "zeros" (diffusers' default)
             or "replicate". Zero padding tells a network where the border is, and through
             many layers where every pixel is, which is how a model can stamp the same picture
@@ -108,6 +114,7 @@ class ImproveConfig:
     working_size: int = 64
     alpha_input: bool = False
     warp_input: bool = False
+    fill_input: bool = False
     padding: str = "zeros"
 
     def __post_init__(self) -> None:

@@ -34,13 +34,16 @@ def load_improver(
     alpha_input: bool = False,
     warp_input: bool = False,
     drop_reference: bool = False,
+    fill_input: bool = False,
 ) -> ImproveModel:
     """The :class:`ImproveModel` a checkpoint written by :func:`save_improver` describes.
 
     ``alpha_input=True`` / ``warp_input=True`` add the (zero-initialised) alpha / warped
     reference input to weights trained without it, to fine-tune them with it: the model then
     behaves exactly as before. ``drop_reference=True`` leaves DWEA out (its weights are not
-    loaded), for the ablation rows without the reference that start from the same weights."""
+    loaded), for the ablation rows without the reference that start from the same weights.
+    ``fill_input=True`` switches on :attr:`ImproveConfig.fill_input` (no weights of its own),
+    to fine-tune a model on filled renders."""
     path = Path(path)
     state, meta = read_checkpoint(path, "improvement-model")
     if meta.get("format") != CHECKPOINT_FORMAT or "config" not in meta:
@@ -49,6 +52,8 @@ def load_improver(
             "generator checkpoints load with ProSplat.from_pretrained(path)"
         )
     config = ImproveConfig.from_json(meta["config"])
+    if fill_input:
+        config = config.with_(fill_input=True)
     added = {
         name: True
         for name, wanted in (("alpha_input", alpha_input), ("warp_input", warp_input))

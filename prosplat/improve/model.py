@@ -27,6 +27,7 @@ from torch import Tensor, nn
 
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.dwea import DWEA, DWEAInjection
+from prosplat.render.hole_fill import fill_holes
 
 
 def build_vae(config: ImproveConfig) -> AutoencoderKL:
@@ -307,8 +308,8 @@ class ImproveModel(nn.Module):
             reference: the MORI reference views [B,3,H,W] (required when config.reference).
             fundamental: F [B,3,3] with x_refᵀ F x_render = 0 in pixels; None or all-zero
                 (pure rotation, coincident cameras) makes DWEA plain attention.
-            alpha: the render's alpha [B,1,H,W] (used with ``config.alpha_input``; None there
-                is read as fully covered).
+            alpha: the render's alpha [B,1,H,W] (used with ``config.alpha_input`` and
+                ``config.fill_input``; None there is read as fully covered).
             warp: the reference warped into the render's view, RGB in [0,1] + validity
                 [B,4,H,W] (used with ``config.warp_input``; None there is read as no warp).
 
@@ -316,6 +317,8 @@ class ImproveModel(nn.Module):
             The enhanced images [B,3,H,W], clamped to [0,1].
         """
         self._check(render, reference)
+        if self.config.fill_input and alpha is not None:
+            render = fill_holes(render, alpha)  # [B,3,H,W]: the holes continued, not black
         if self.alpha_in is not None and alpha is None:
             alpha = torch.ones_like(render[:, :1])
         if self.warp_in is not None and warp is None:

@@ -83,6 +83,9 @@ class ImproveTrainConfig:
     # give the model the reference warped through the rendered depth + its validity (needs
     # sets curated with the warp; prosplat.improve.warp)
     warp: bool = False
+    # fill the render's holes from its own colours before the model sees it (ImproveConfig.
+    # fill_input; needs --alpha). A model trained with it keeps it
+    fill: bool = False
     padding: str = ""  # set the convolutions' padding ("zeros" | "replicate"; "": the model's)
     # weight of the shift term: half of each batch is the other half's crops moved 1-7 px, and
     # the two outputs must agree where they overlap (augment.shifted_pairs; needs --crop).
@@ -270,8 +273,9 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         # --no-reference from a reference model: the ablation row starts from the same
         # weights, DWEA left out
         model = load_improver(
-            cfg.init, alpha_input=cfg.alpha, warp_input=cfg.warp, drop_reference=not cfg.reference
-        )
+            cfg.init, alpha_input=cfg.alpha, warp_input=cfg.warp,
+            drop_reference=not cfg.reference, fill_input=cfg.fill,
+        )  # fmt: skip
         asked = {"timestep": cfg.timestep, "denoise": cfg.denoise, "reference": cfg.reference}
         have = {k: getattr(model.config, k) for k in asked}
         if have != asked:
@@ -291,6 +295,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
                 epipolar=cfg.epipolar,
                 alpha_input=cfg.alpha,
                 warp_input=cfg.warp,
+                fill_input=cfg.fill,
             )
         )
     model.to(device).train()
@@ -300,6 +305,8 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             f"--alpha needs curated sets with the renders' alpha; one of {cfg.data} has none "
             "(curate it again with this version of `prosplat train curate`)"
         )
+    if model.config.fill_input and not cfg.alpha:
+        raise ValueError("--fill fills the renders' holes, which needs their alpha: pass --alpha")
     if model.config.warp_input and not cfg.warp:
         raise ValueError(
             f"--init {cfg.init} was trained with the warped reference (warp_input); pass --warp"
