@@ -519,8 +519,11 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
     from prosplat.render.hole_fill import fill_colour, fill_holes
 
     rungs = {r.name: r for r in build_rungs(["generator", "enhanced", "fill"], LadderContext({}))}
-    assert list(rungs) == ["generator", "enhanced", "generator filled", "enhanced filled"]
+    assert list(rungs) == [
+        "generator", "enhanced", "generator filled", "enhanced filled", "true depth filled",
+    ]  # fmt: skip
     assert rungs["generator filled"].shares == rungs["enhanced filled"].shares == "generator"
+    assert rungs["true depth filled"].shares == "true depth"
     scene = load_scene(data / "tabletop_000001")
     idx = pick_inputs(scene, 3)
     inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
@@ -546,6 +549,15 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
         filled[:, hole] <= seen.max(1, keepdim=True).values + 1e-5
     )
     assert inside.all() and filled[:, hole].sum(0).gt(0.05).float().mean() > 0.9
-    # without an improvement model the raw row alone
+    # the upper bound with the same fill: the true-depth render, only lighter where it is open
+    truth = {r.name: r for r in build_rungs(["true-depth"], LadderContext({"improve": False}))}
+    inp = SceneInputs(inp.images, inp.cameras, scene.depths[idx], inp.near, inp.far)
+    state = truth["true depth"].reconstruct(inp)
+    bare = truth["true depth"].view(state, wide, inp)
+    full = rungs["true depth filled"].view(state, wide, inp).image
+    assert (full >= bare.image - 1e-6).all() and not torch.allclose(full, bare.image)
+    covered = bare.alpha > 0.999
+    assert torch.allclose(full[:, covered], bare.image[:, covered], atol=2e-3)
+    # without an improvement model the raw rows alone
     only = build_rungs(["fill"], LadderContext({"improve": False}))
-    assert [r.name for r in only] == ["generator filled"]
+    assert [r.name for r in only] == ["generator filled", "true depth filled"]

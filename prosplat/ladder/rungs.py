@@ -308,14 +308,20 @@ def fill_rungs(ctx: LadderContext) -> list[Rung]:
     render composited over the fill; no learning, so it sits between the raw and the
     enhanced rows) and, per improvement model, ``enhanced filled`` (stage 2's view blended
     with the fill by the render's alpha), what ``ProSplat.render(..., fill_holes=True)``
-    returns."""
+    returns; and ``true depth filled``, the upper bound's raw render with the same fill (the
+    scenes' depth maps needed), so the filled rows have their own bound."""
     recon, dtype = _generator_gaussians(ctx), _dtype(ctx)
     rungs = [Rung("generator filled", recon, _filled_view(), "generator", depth=True)]
     improvers = ctx.improvers("enhanced filled")  # {} without an improvement model
-    return rungs + [
+    rungs += [
         Rung(f"enhanced filled{suffix}", recon, _filled_view(imp, dtype), "generator", depth=True)
         for suffix, imp in improvers.items()
     ]
+
+    def true_filled(state, cam: Camera, inp: SceneInputs) -> View:  # the same fill
+        return true_depth_view(state, cam, inp, fill_holes=True)
+
+    return rungs + [Rung("true depth filled", _true_depth, true_filled, "true depth", depth=True)]
 
 
 def warp_paste_view(g, cam: Camera, inp: SceneInputs) -> View:
@@ -409,19 +415,28 @@ def _true_depth(inp: SceneInputs):
     return surface, sky
 
 
-def true_depth_view(state, cam: Camera, inp: SceneInputs, improver=None, dtype=None) -> View:
+def true_depth_view(
+    state, cam: Camera, inp: SceneInputs, improver=None, dtype=None, fill_holes=False
+) -> View:
     """The surfaces rendered over the sky shell (rendered apart, so the depth and alpha scored
     are the surfaces': a 10 % leak of a sky 20x farther away would otherwise triple a pixel's
-    depth), enhanced with the MORI reference when ``improver`` is given."""
+    depth), enhanced with the MORI reference when ``improver`` is given; ``fill_holes``: the
+    raw view's holes (what neither surface nor sky covers) filled as the generator's are
+    (:mod:`prosplat.render.hole_fill`), so the upper bound gets the same help."""
     from prosplat.enhance import enhance
     from prosplat.render import render
+    from prosplat.render.hole_fill import fill_holes as fill
 
     surface, sky = state
     with torch.no_grad():
         out = render(surface, cam)  # rgb over black, alpha, depth [H,W]
-        raw = out.rgb
+        raw, cover = out.rgb, out.alpha
         if sky is not None:
-            raw = raw + (1 - out.alpha)[None] * render(sky, cam).rgb
+            back = render(sky, cam)
+            raw = raw + (1 - out.alpha)[None] * back.rgb
+            cover = out.alpha + (1 - out.alpha) * back.alpha
+        if fill_holes:
+            raw = fill(raw, cover)
     if improver is None:
         return View(raw, out.depth, out.alpha, info={"gaussians": len(surface)})
     j = select_reference(cam, inp.cameras, method="paper")
