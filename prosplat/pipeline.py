@@ -597,7 +597,8 @@ class ProSplat:
         working size and the guard: a guarded view returns the raw render as ``image`` and the
         reason in ``view.guard``. ``fill_holes``: a raw ``image`` (``enhance=False`` or
         guarded) has the holes no input saw filled from its own colours instead of black
-        (:mod:`prosplat.render.hole_fill`; +2.8 / +3.3 dB at 64 / 128 px on the test scenes).
+        (:mod:`prosplat.render.hole_fill`; +3.1 / +3.5 / +4.1 dB at 64 / 128 / 256 px on the
+        test scenes).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with

@@ -2,9 +2,9 @@
 
 A feed-forward generator places Gaussians only where some input pixel looked, so a novel
 camera sees holes: on the test scenes 7 % of a target's pixels at 64 px, left black by the
-rasterizer's default background. Black is the worst answer there: those pixels cost the
-generator's raw render 2.6 dB at 64 px and 3.1 dB at 128 px (BENCHMARKS.md, "Holes in the
-raw render"). What lies in a hole is usually the continuation of what surrounds it (the
+rasterizer's default background. Black is the worst answer there: filling them lifts the
+generator's raw render by 3.1 / 3.5 / 4.1 dB at 64 / 128 / 256 px (BENCHMARKS.md, "Holes in
+the raw render"). What lies in a hole is usually the continuation of what surrounds it (the
 floor or wall that runs out of the inputs' view), so the hole is filled by pull-push
 (Gortler et al., "The Lumigraph", 1996): an alpha-weighted image pyramid is pulled down
 until every level is covered, then each level is composited *over* the level below it on
