@@ -144,6 +144,12 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         name="Enhance Renders", default=True,
         description="Run the improvement model (stage 2) on each render; off: raw renders",
     )  # fmt: skip
+    fill_holes: BoolProperty(
+        name="Fill Holes", default=False,
+        description="Where no input saw the scene, continue the render's own colours instead "
+        "of showing black (raw renders over the fill; enhanced ones blended with it where the "
+        "Gaussians do not cover the view)",
+    )  # fmt: skip
     budget: IntProperty(
         name="Gaussian Budget", default=0, min=0,
         description="Most Gaussians a reconstruction keeps (0: automatic, lossless pruning only)",
@@ -197,6 +203,7 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         draw_depthsplat_note(col, self)
         col.prop(self, "improve_weights_path")
         col.prop(self, "enhance")
+        col.prop(self, "fill_holes")
         col.prop(self, "budget")
         col.prop(self, "refine_seconds")
         col.prop(self, "distill_steps")

@@ -130,6 +130,7 @@ class PROSPLAT_PT_render(_Panel, bpy.types.Panel):
         p = runtime.prefs(context)
         if isinstance(p, bpy.types.AddonPreferences):
             layout.prop(p, "enhance")
+            layout.prop(p, "fill_holes")
             row = layout.row()
             row.enabled = p.enhance
             row.prop(p, "distill_steps")

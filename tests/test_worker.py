@@ -251,6 +251,27 @@ def test_render_without_improver_warns_and_saves_raw(scene, tmp_path: Path, monk
     assert any("enhancement" in w for w in res["warnings"])
 
 
+def test_render_fill_holes_shows_a_continuation_where_the_render_is_empty(scene, tmp_path):
+    """``fill_holes`` (the add-on's Fill Holes): a raw render's empty pixels get the pull-push
+    fill of its own colours instead of black; covered pixels are unchanged."""
+    from prosplat.image_io import read_image
+    from prosplat.render.hole_fill import fill_holes
+
+    folder, cams = scene
+    g = random_gaussians(30, 0)
+    targets = [{"name": "v", "camera": camera_to_blender_dict(cams[0])}]
+    base = {"arrays": to_attributes(g), "targets": targets, "enhance": False, "device": "cpu"}
+    plain = run_task("render", {**base, "output_dir": str(tmp_path / "plain")})
+    filled = run_task("render", {**base, "fill_holes": True, "output_dir": str(tmp_path / "f")})
+    a, b = (read_image(r["views"][0]["image"]) for r in (plain, filled))
+    out = render(g, cams[0])
+    hole = out.alpha < 1e-3
+    assert hole.float().mean() > 0.005  # the view has holes to fill
+    assert (a[:, hole] < 1e-6).all() and (b[:, hole].sum(0) > 0.02).all()
+    want = fill_holes(out.rgb, out.alpha).clamp(0, 1)
+    assert torch.allclose(b, want, atol=1.5 / 255)  # the same fill, through an 8-bit PNG
+
+
 def test_cancelled_progress_stops_before_any_output(scene, tmp_path: Path) -> None:
     folder, cams = scene
     progress = Progress()

@@ -305,9 +305,12 @@ def _safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "view"
 
 
-def _render_one(model, g: Gaussians, cam: Camera, images, cameras, enhance: bool):
-    """``model.render``: rasterize, then (``enhance``) the improvement model with MORI."""
-    return model.render(g, cam, images, cameras if cameras else None, enhance=enhance)
+def _render_one(model, g: Gaussians, cam: Camera, images, cameras, enhance: bool, fill=False):
+    """``model.render``: rasterize, then (``enhance``) the improvement model with MORI;
+    ``fill``: the holes no input saw shown as a continuation of the render's colours."""
+    return model.render(
+        g, cam, images, cameras if cameras else None, enhance=enhance, fill_holes=fill
+    )
 
 
 def _sequence_of(targets: list) -> tuple[str, list[int]] | None:
@@ -410,14 +413,15 @@ def _render_and_save(model, g, cam, images, in_cams, enhance, params, progress, 
     """One view: render (raw if enhancement fails), write its files, say what was written."""
     from prosplat.image_io import write_depth, write_image
 
+    fill = bool(params.get("fill_holes", False))
     try:
-        v = _render_one(model, g, cam, images, in_cams, enhance)
+        v = _render_one(model, g, cam, images, in_cams, enhance, fill)
     except ValueError as e:
         if not enhance or "improv" not in str(e).lower():
             raise
         progress.warn(f"enhancement unavailable ({e}); saved raw renders instead")
         enhance = False
-        v = _render_one(model, g, cam, images, in_cams, False)
+        v = _render_one(model, g, cam, images, in_cams, False, fill)
     suffixes = _suffixes(params, enhance)  # enhancement may have just fallen back to raw
     if prefix is not None:
         stem = f"{prefix}_{int(t['frame']):04d}"
