@@ -13,9 +13,9 @@ across the hole; a pixel the render covers keeps its colour exactly, and a half-
 one is completed by the same ``over`` compositing the rasterizer uses for its background.
 
 Nothing is learned and nothing is invented beyond a smooth continuation, so this is a
-display choice for raw renders, not geometry: stage 2 still gets the render on black with
-its alpha (it was trained so, and paints holes better), and the ladder keeps the unfilled
-``generator`` row beside the ``generator filled`` one.
+display choice for raw renders, not geometry: stage 2 gets the render on black with its
+alpha, as it was trained (unless its config says ``fill_input``), and the ladder keeps the
+unfilled ``generator`` row beside the ``generator filled`` one.
 """
 
 from __future__ import annotations
@@ -60,23 +60,15 @@ def fill_colour(rgb: Tensor, alpha: Tensor) -> Tensor:
         alpha: [H,W], [1,H,W] or [B,1,H,W] (or [B,H,W]) coverage in [0, 1].
 
     Returns:
-        ``rgb + (1 - alpha) · fill`` with rgb's shape: fully covered pixels are unchanged;
-        the fill is an alpha-weighted average of covered pixels, so it never leaves the
-        range of the render's own (un-premultiplied) colours. An image with no coverage at
-        all comes back unchanged (black): there is nothing to continue.
+        [3,H,W] or [B,3,H,W] (not premultiplied): at every pixel the alpha-weighted mean
+        colour of the covered pixels nearest it, read from the next-coarser pyramid level,
+        so it never leaves the range of the render's own (un-premultiplied) colours; black
+        where nothing at all is covered (there is nothing to continue).
     """
+    a = _alpha_like(rgb, alpha)
     single = rgb.ndim == 3
-    c = rgb[None] if single else rgb  # [B,3,H,W]
-    if c.ndim != 4 or c.shape[1] != 3:
-        raise ValueError(f"fill_holes: rgb must be [3,H,W] or [B,3,H,W], got {list(rgb.shape)}")
-    b, _, h, w = c.shape
-    try:
-        a = alpha.reshape(b, 1, h, w).to(c.dtype)  # [B,1,H,W]
-    except RuntimeError:
-        raise ValueError(
-            f"fill_holes: alpha {list(alpha.shape)} does not match rgb {list(rgb.shape)}"
-        ) from None
-    a = a.clamp(0, 1)
+    c, a = (rgb[None], a[None]) if single else (rgb, a)  # [B,3,H,W], [B,1,H,W]
+    h, w = c.shape[-2:]
     # pull: premultiplied colour and coverage, averaged 2x2 and renormalised so that a
     # block with any coverage becomes (more) opaque: a coarse level holds the mean colour
     # of what was covered below it, and coverage saturates within a few levels
