@@ -73,7 +73,10 @@ def cmd_blend(args: argparse.Namespace) -> int:
     from prosplat.train.blend import blend_files
 
     try:
-        path = blend_files(args.a, args.b, args.weight, args.out, overwrite=args.overwrite)
+        path = blend_files(
+            args.a, args.b, args.weight, args.out, overwrite=args.overwrite,
+            fill_input=args.fill_input,
+        )  # fmt: skip
     except (ValueError, FileExistsError) as e:
         print(f"prosplat train blend: {e}", file=sys.stderr)
         return 2
@@ -201,6 +204,12 @@ def add_train_parsers(train_sub) -> None:
     bl.add_argument("--weight", type=float, required=True, help="B's share, in [0, 1]")
     bl.add_argument("--out", required=True, help="checkpoint to write (.safetensors)")
     bl.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    bl.add_argument(
+        "--fill-input",
+        action="store_true",
+        help="load both as models that see the filled render (ImproveConfig.fill_input), so "
+        "a --fill fine-tune blends with the model it started from",
+    )
     bl.set_defaults(func=cmd_blend)
 
 

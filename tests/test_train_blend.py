@@ -73,3 +73,26 @@ def test_cli_blend_writes_a_loadable_file_and_does_not_clobber(tmp_path, capsys)
     assert done.value.code == 2
     assert "exists" in capsys.readouterr().err
     assert out.read_bytes() == before
+
+
+def test_cli_blend_fill_input_joins_a_fill_fine_tune_with_its_start(tmp_path, capsys) -> None:
+    """A model fine-tuned with --fill (config fill_input) and the one it started from differ
+    in config, so a plain blend refuses them; --fill-input loads both as fill models."""
+    a, b = _pair()
+    pa = save_improver(a, tmp_path / "start.safetensors")
+    pb = save_improver(
+        load_improver(save_improver(b, tmp_path / "b.safetensors"), fill_input=True),
+        tmp_path / "fill.safetensors",
+    )
+    out = tmp_path / "mid.safetensors"
+    argv = ["train", "blend", str(pa), str(pb), "--weight", "0.5", "--out", str(out)]
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code == 2 and "fill_input" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as done:
+        main(argv + ["--fill-input"])
+    assert done.value.code == 0
+    mid = load_improver(out)
+    assert mid.config.fill_input
+    k = next(k for k, v in a.state_dict().items() if v.is_floating_point())
+    torch.testing.assert_close(mid.state_dict()[k], 0.5 * (a.state_dict()[k] + b.state_dict()[k]))

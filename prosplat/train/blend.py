@@ -42,11 +42,20 @@ def blend_improvers(a: ImproveModel, b: ImproveModel, weight: float) -> ImproveM
 
 
 def blend_files(
-    a: str | Path, b: str | Path, weight: float, out: str | Path, overwrite: bool = False
+    a: str | Path,
+    b: str | Path,
+    weight: float,
+    out: str | Path,
+    overwrite: bool = False,
+    fill_input: bool = False,
 ) -> Path:
     """:func:`blend_improvers` on two checkpoints, written to ``out`` with the blend (its two
-    sources and weight) in the metadata."""
-    model = blend_improvers(load_improver(a), load_improver(b), weight)
+    sources and weight) in the metadata. ``fill_input``: both are loaded as models that see
+    the filled render (:attr:`ImproveConfig.fill_input`, no weights of its own), so a model
+    fine-tuned with ``--fill`` blends with the one it started from."""
+    model = blend_improvers(
+        load_improver(a, fill_input=fill_input), load_improver(b, fill_input=fill_input), weight
+    )
     return save_improver(
         model, out, overwrite=overwrite, blend=f"(1 - {weight}) * {a} + {weight} * {b}"
     )
