@@ -11,9 +11,10 @@ PSNR / SSIM / LPIPS (:mod:`prosplat.metrics`):
 * ``generator``: the generator's render; ``enhanced``: that render after stage 2;
 * ``generator filled``: the generator's render with the holes no input saw filled from its
   own colours (:mod:`prosplat.render.hole_fill`; sets on a black background only);
-* with ``--refine-steps`` / ``--refine-seconds``, also ``refined`` and ``refined enhanced``:
-  (and ``refined filled``) the same generator Gaussians refined against the inputs, so one run shows what refinement
-  buys on the user's own images (the ladder's rows, on data no ProSplat scene generator made).
+* with ``--refine-steps`` / ``--refine-seconds``, also ``refined``, ``refined filled`` and
+  ``refined enhanced``: the same generator Gaussians refined against the inputs, so one run
+  shows what refinement buys on the user's own images (the ladder's rows, on data no
+  ProSplat scene generator made).
 
 ``views.png`` shows the first targets side by side (ground truth, then each row's image), so
 the numbers can be checked by eye.
