@@ -194,5 +194,16 @@ class Gaussians:
         )
         return Gaussians(self.means, self.quats, self.scales, self.opacities, sh)
 
+    def with_scale_factor(self, factor: float) -> Gaussians:
+        """Every Gaussian's standard deviations multiplied by ``factor`` (> 0), nothing else
+        changed: 3DGS's render-time "scaling modifier". The generator sizes its Gaussians to
+        cover the pixels between them on a black background; where the holes are filled
+        anyway (pull-push, stage 2) smaller ones render sharper (:data:`prosplat.enhance.SPLAT_SCALE`)."""
+        if isinstance(factor, bool) or not (math.isfinite(factor) and factor > 0):
+            raise ValueError(f"scale factor must be a finite number > 0, got {factor!r}")
+        if factor == 1:
+            return self
+        return Gaussians(self.means, self.quats, self.scales * factor, self.opacities, self.sh)
+
     def tensors(self) -> dict[str, Tensor]:
         return {f.name: getattr(self, f.name) for f in fields(self)}

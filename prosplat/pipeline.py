@@ -587,6 +587,7 @@ class ProSplat:
         dtype: torch.dtype = torch.float32,
         options: EnhanceOptions | None = None,
         fill_holes: bool = False,
+        splat_scale: float = 1.0,
     ) -> EnhancedView:
         """Render ``camera`` and enhance it with the improvement model.
 
@@ -598,7 +599,9 @@ class ProSplat:
         reason in ``view.guard``. ``fill_holes``: a raw ``image`` (``enhance=False`` or
         guarded) has the holes no input saw filled from its own colours instead of black
         (:mod:`prosplat.render.hole_fill`; +3.1 / +3.5 / +4.1 dB at 64 / 128 / 256 px on the
-        test scenes).
+        test scenes). ``splat_scale``: the Gaussians' scales multiplied by it for this render
+        (:data:`prosplat.enhance.SPLAT_SCALE` suits the generator's unrefined Gaussians in a
+        filled or enhanced view; refined ones are best left at 1).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with
@@ -622,6 +625,7 @@ class ProSplat:
             dtype=dtype,
             options=options,
             fill_holes=fill_holes,
+            splat_scale=splat_scale,
         )
 
     def distill(

@@ -127,3 +127,36 @@ def test_render_view_fills_only_the_shown_raw_image():
     assert torch.equal(plain.image, raw.rgb)  # off by default: the rasterizer's image
     with pytest.raises(ValueError, match="not both"):
         render_view(g, cam, background=torch.ones(3), fill_holes=True)
+
+
+def test_splat_scale_renders_the_gaussians_smaller_and_a_guarded_view_at_their_own_size(
+    monkeypatch,
+):
+    """``splat_scale`` multiplies every Gaussian's scales for that render (the brute-force
+    twin: rendering :meth:`Gaussians.with_scale_factor` directly); a smaller splat leaves more
+    holes on black, which the fill then completes; a view the guard refuses on black comes
+    back at the Gaussians' own size, not the smaller one it was enhanced at."""
+    from types import SimpleNamespace
+
+    from prosplat import enhance as enhance_module
+
+    g, cam = _half_scene()
+    small = render(g.with_scale_factor(0.5), cam)
+    view = render_view(g, cam, fill_holes=True, splat_scale=0.5)
+    assert torch.equal(view.raw, small.rgb) and torch.equal(view.alpha, small.alpha)
+    assert torch.allclose(view.image, fill_holes(small.rgb, small.alpha))
+    assert float(small.alpha.sum()) < float(render(g, cam).alpha.sum())  # smaller footprints
+    assert g.with_scale_factor(1.0) is g
+    assert torch.equal(g.with_scale_factor(0.25).scales, g.scales * 0.25)
+    for bad in (0.0, -1.0, float("nan"), float("inf"), True):
+        with pytest.raises(ValueError, match="scale factor"):
+            g.with_scale_factor(bad)
+    # a model that rewrites every pixel: the departure guard refuses its view
+    monkeypatch.setattr(enhance_module, "enhance", lambda improver, raw, *a, **k: 1.0 - raw)
+    scribbler = SimpleNamespace(config=SimpleNamespace(warp_input=False))
+    images = torch.rand(1, 3, cam.height, cam.width)
+    guarded = render_view(g, cam, images, [cam], scribbler, splat_scale=0.5)
+    assert guarded.guard is not None
+    assert torch.equal(guarded.image, render(g, cam).rgb)  # the Gaussians as given, on black
+    filled = render_view(g, cam, images, [cam], scribbler, splat_scale=0.5, fill_holes=True)
+    assert filled.guard is not None and torch.allclose(filled.image, view.image)

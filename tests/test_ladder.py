@@ -383,6 +383,7 @@ def test_eval_ladder_end_to_end(data, tmp_path, capsys):
         (["--refine-steps", "0"], "--refine-steps: [0] must be >= 1"),
         (["--refine-seconds", "0"], "--refine-seconds: [0.0] must be > 0"),
         (["--distill-steps", "0"], "--distill-steps: [0] must be >= 1"),
+        (["--splat-scales", "0"], "--splat-scales: [0.0] must be finite and > 0"),
         (["--generator-size", "48"], "--generator-size 48 is not a multiple of 32"),
     ],
 )
@@ -561,3 +562,34 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
     # without an improvement model the raw rows alone
     only = build_rungs(["fill"], LadderContext({"improve": False}))
     assert [r.name for r in only] == ["generator filled", "true depth filled"]
+
+
+def test_splat_rows_draw_the_generator_gaussians_smaller_in_filled_and_enhanced_views(data):
+    """``--rows splat --splat-scales S``: the same reconstruction as the ``generator`` row,
+    its Gaussians' scales multiplied by S before the filled and the enhanced views are made
+    (what ``render_view(..., splat_scale=S)`` returns); without a scale the rows skip."""
+    from prosplat.enhance import render_view
+
+    messages = []
+    assert build_rungs(["splat"], LadderContext({}), log=messages.append) == []
+    assert any("--splat-scales" in m for m in messages)
+    ctx = LadderContext({"splat_scales": [0.5]})
+    rungs = {r.name: r for r in build_rungs(["generator", "splat"], ctx)}
+    assert list(rungs) == [
+        "generator", "generator filled ×0.5", "enhanced ×0.5", "enhanced filled ×0.5",
+    ]  # fmt: skip
+    assert {r.shares for r in rungs.values()} == {"generator"}
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    g = rungs["generator"].reconstruct(inp)
+    cam = scene.cameras[scene.target_indices[0]]
+    small = render(g.with_scale_factor(0.5), cam)
+    filled = rungs["generator filled ×0.5"].view(g, cam, inp)
+    assert torch.equal(filled.alpha, small.alpha) and torch.equal(filled.depth, small.depth)
+    expected = render_view(g, cam, inp.images, inp.cameras, fill_holes=True, splat_scale=0.5)
+    assert torch.equal(filled.image, expected.image)
+    enh = rungs["enhanced ×0.5"].view(g, cam, inp).image
+    again = render_view(g, cam, inp.images, inp.cameras, ctx.improver("splat"), splat_scale=0.5)
+    assert torch.allclose(enh, again.image)
+    assert not torch.allclose(enh, rungs["generator"].view(g, cam, inp).image)

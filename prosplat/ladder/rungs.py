@@ -214,15 +214,17 @@ def paste_rungs(ctx: LadderContext) -> list[Rung]:
 
 
 def splat_view(
-    gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False
+    gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False,
+    splat_scale: float = 1.0,
 ) -> View:
     """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference);
-    ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`)."""
+    ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`);
+    ``splat_scale``: the Gaussians' scales multiplied by it (:func:`prosplat.enhance.render_view`)."""
     from prosplat.enhance import render_view
 
     out = render_view(
         gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32,
-        fill_holes=fill_holes,
+        fill_holes=fill_holes, splat_scale=splat_scale,
     )  # fmt: skip
     return View(
         out.image,
@@ -322,6 +324,34 @@ def fill_rungs(ctx: LadderContext) -> list[Rung]:
         return true_depth_view(state, cam, inp, fill_holes=True)
 
     return rungs + [Rung("true depth filled", _true_depth, true_filled, "true depth", depth=True)]
+
+
+@register("splat")
+def splat_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's Gaussians drawn smaller (``--splat-scales``: their scales multiplied,
+    :meth:`prosplat.Gaussians.with_scale_factor`) where the holes do not show black: rows
+    ``generator filled ×S`` and, per improvement model, ``enhanced ×S`` and ``enhanced
+    filled ×S``, on the same reconstruction as the ``generator`` row, so they pair with
+    ``generator filled`` and ``enhanced`` target by target."""
+    factors = [float(s) for s in ctx.options.get("splat_scales") or []]
+    if not factors:
+        raise SkipRung("no splat scale asked for; pass --splat-scales 0.5")
+    recon, dtype = _generator_gaussians(ctx), _dtype(ctx)
+    improvers = ctx.improvers("splat")  # {} without an improvement model
+
+    def make(name: str, s: float, improver=None, fill: bool = True) -> Rung:
+        def view(g, cam: Camera, inp: SceneInputs) -> View:
+            return splat_view(g, cam, inp, improver, dtype, fill_holes=fill, splat_scale=s)
+
+        return Rung(f"{name} ×{s:g}", recon, view, "generator", depth=True)
+
+    rungs = []
+    for s in factors:
+        rungs.append(make("generator filled", s))
+        for suffix, imp in improvers.items():
+            rungs.append(make(f"enhanced{suffix}", s, imp, fill=False))
+            rungs.append(make(f"enhanced filled{suffix}", s, imp))
+    return rungs
 
 
 def warp_paste_view(g, cam: Camera, inp: SceneInputs) -> View:
