@@ -216,7 +216,7 @@ def paste_rungs(ctx: LadderContext) -> list[Rung]:
 def splat_view(
     gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False,
     splat_scale: float = 1.0,
-) -> View:
+) -> View:  # fmt: skip
     """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference);
     ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`);
     ``splat_scale``: the Gaussians' scales multiplied by it (:func:`prosplat.enhance.render_view`)."""
