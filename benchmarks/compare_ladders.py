@@ -8,6 +8,12 @@ the runs must have drawn the same inputs and targets (the same data and ``--seed
 
     python benchmarks/compare_ladders.py runs/eval_v7/ladder/ladder.json \\
         runs/eval_v8/ladder/ladder.json --rows generator enhanced
+
+``--against ROW`` pairs every B row with A's row ROW instead of its namesake, so two rows of
+one run pair too (the same file as A and B):
+
+    python benchmarks/compare_ladders.py L.json L.json --rows "refine 100 enhanced" \\
+        --against enhanced
 """
 
 from __future__ import annotations
@@ -34,8 +40,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("a", type=Path, help="ladder.json of the reference run (A)")
     p.add_argument("b", type=Path, help="ladder.json of the run compared with it (B)")
     p.add_argument("--rows", nargs="+", default=["generator", "enhanced"])
+    p.add_argument("--against", default=None, metavar="ROW",
+                   help="pair every B row with this row of A (default: the row of that name)")  # fmt: skip
     args = p.parse_args(argv)
     a, b = _scores(args.a), _scores(args.b)
+    if args.against is not None:  # A re-keyed so that its ROW stands for each B row
+        a = {(*k[:2], row, *k[3:]): s for k, s in a.items() if k[2] == args.against
+             for row in args.rows}  # fmt: skip
     common = sorted(k for k in a.keys() & b.keys() if k[2] in args.rows)
     if not common:
         raise SystemExit(f"no targets of rows {args.rows} in both {args.a} and {args.b}")

@@ -53,3 +53,24 @@ def test_runs_without_common_targets_are_refused(tmp_path: Path) -> None:
     b = _ladder(tmp_path / "b.json", 0.0, {"open_2": "open"})
     with pytest.raises(SystemExit, match="no targets"):
         _module().main([str(a), str(b)])
+
+
+def test_against_pairs_two_rows_of_one_run(tmp_path: Path, capsys) -> None:
+    """``--against ROW``: each B row paired with A's ROW on the same targets, so one run's
+    rows compare with each other (here the paste, 15+t dB, against itself and the others)."""
+    path = tmp_path / "one.json"
+    scores = [
+        dict(rung=rung, size=64, views=4, scene="room_1", scene_type="room", target=t,
+             psnr=15.0 + t + gain, lpips=0.3 - gain / 10)
+        for rung, gain in (("MORI paste", 0.0), ("enhanced", 2.0), ("refine 100 enhanced", 2.5))
+        for t in range(4)
+    ]  # fmt: skip
+    path.write_text(json.dumps({"scores": scores}))
+    _module().main([str(path), str(path), "--rows", "enhanced", "refine 100 enhanced",
+                    "--against", "MORI paste"])  # fmt: skip
+    out = capsys.readouterr().out
+    table = [line for line in out.splitlines() if "| 64 | 4 |" in line and "[" in line]
+    lines = {line.split("|")[3].strip(): line for line in table}
+    assert "+2.00 [+2.00, +2.00]" in lines["enhanced"]
+    assert "+2.50 [+2.50, +2.50]" in lines["refine 100 enhanced"]
+    assert "16.50 / 0.300" in lines["enhanced"]  # A is the paste's own score
