@@ -44,9 +44,13 @@ def cmd_curate(args: argparse.Namespace) -> int:
     if args.refine_steps < 0:
         print("prosplat train curate: --refine-steps must be >= 0 (0: off)", file=sys.stderr)
         return 2
+    if not 0 < args.splat_scale < float("inf"):
+        print("prosplat train curate: --splat-scale must be finite and > 0", file=sys.stderr)
+        return 2
     path = curate(
         model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd,
         refine_steps=args.refine_steps, height=args.size, generator_height=args.generator_size,
+        splat_scale=args.splat_scale,
     )  # fmt: skip
     print(f"curated set: {path.resolve()}")
     return 0
@@ -148,6 +152,13 @@ def add_train_parsers(train_sub) -> None:
         default=0,
         help="render refined scenes: N steps of prosplat.refine after the automatic budget "
         "(default 0: the generator's raw Gaussians)",
+    )
+    cu.add_argument(
+        "--splat-scale",
+        type=float,
+        default=1.0,
+        help="render the Gaussians with their scales multiplied by this (default 1; "
+        "prosplat.enhance.SPLAT_SCALE for a model that enhances smaller splats)",
     )
     cu.add_argument(
         "--size",

@@ -74,6 +74,30 @@ def test_curation_stores_render_reference_and_truth(setup) -> None:
         curated_batch(data, torch.tensor([0]), "nearest", "cpu")
 
 
+def test_curation_renders_smaller_splats_as_render_view_draws_them(setup) -> None:
+    """``splat_scale``: the stored render and alpha are the Gaussians drawn at that multiple
+    of their scales, what ``render_view(..., splat_scale=)`` gives the model at run time."""
+    from prosplat.data import load_scene
+    from prosplat.enhance import render_view
+    from prosplat.evaluate import pick_inputs
+    from prosplat.train.curate import curate_scene
+
+    root, gen_path, _ = setup
+    model = ProSplat.from_pretrained(gen_path, improve=False)
+    scene = load_scene(root / "scenes" / "scene_0", load_depth=False)
+    small = curate_scene(model, scene, [2], splat_scale=0.5)
+    plain = curate_scene(model, scene, [2])
+    idx = pick_inputs(scene, 2)
+    cams = [scene.cameras[i] for i in idx]
+    full, _ = model.generate(scene.images[idx], cams, float(scene.near[idx].min()),
+                             float(scene.far[idx].max()))  # fmt: skip
+    t = scene.target_indices[0]
+    view = render_view(full.gaussians(0), scene.cameras[t], splat_scale=0.5)
+    assert torch.allclose(small["render"][0].float(), view.raw, atol=1e-3)
+    assert torch.allclose(small["alpha"][0].float(), view.alpha, atol=1e-3)
+    assert float(small["alpha"][0].float().mean()) < float(plain["alpha"][0].float().mean())
+
+
 def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
     _, _, curated = setup
     cfg = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "run"), val=str(curated), steps=4,

@@ -44,13 +44,16 @@ def curate_scene(
     refine_steps: int = 0,
     seed: int = 0,
     generator_height: int | None = None,
+    splat_scale: float = 1.0,
 ) -> dict[str, list[Tensor]]:
     """Samples of one scene for each input-view count in ``views`` (counts above the scene's
     input views are skipped). ``refine_steps > 0`` renders the refined scene instead (the
     generator's Gaussians pruned to the automatic budget, then :func:`prosplat.refine.refine`
     for that many steps with its default options), so stage 2 can learn refined renders.
     ``generator_height``: the generator runs at most this high, as the pipeline runs it
-    (:meth:`ProSplat.generator_views`; None: the weights' trained size, 0: the views' size)."""
+    (:meth:`ProSplat.generator_views`; None: the weights' trained size, 0: the views' size).
+    ``splat_scale``: the Gaussians render with their scales multiplied by it, as
+    ``render_view(..., splat_scale=)`` draws them for a model trained on such renders."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -77,6 +80,7 @@ def curate_scene(
             gaussians = full.gaussians(0)
             same_size = full.depths.shape[-2:] == images.shape[-2:]
             input_depths = full.depths[0] if same_size else None  # MORI needs input-size maps
+        gaussians = gaussians.with_scale_factor(splat_scale)
         ref_depths: dict[int, Tensor] = {}  # input j -> the Gaussians' depth there [H,W]
         for t in scene.target_indices:
             cam = scene.cameras[t]
@@ -114,11 +118,13 @@ def curate(
     refine_steps: int = 0,
     height: int | None = None,
     generator_height: int | None = None,
+    splat_scale: float = 1.0,
 ) -> Path:
     """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
     ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`); ``height``:
     views resized to this height first (antialiased, as the ladder evaluates), so one set of
-    128-px scenes serves a 64-px model; ``generator_height``: see :func:`curate_scene`."""
+    128-px scenes serves a 64-px model; ``generator_height`` and ``splat_scale``: see
+    :func:`curate_scene`."""
     if int(refine_steps) != refine_steps or refine_steps < 0:
         raise ValueError(f"refine_steps must be an integer >= 0 (0: off), got {refine_steps}")
     from tqdm import tqdm
@@ -145,7 +151,7 @@ def curate(
         size = hw
         part = curate_scene(
             model, scene, views, refine_steps=refine_steps, seed=s,
-            generator_height=generator_height,
+            generator_height=generator_height, splat_scale=splat_scale,
         )  # fmt: skip
         for k, v in part.items():
             cols.setdefault(k, []).extend(v)
@@ -162,6 +168,7 @@ def curate(
         "refine_steps": str(int(refine_steps)),
         "height": str(height or ""),
         "generator_height": str(generator_height or ""),
+        "splat_scale": f"{splat_scale:g}",
         "command": command,
     }
     return write_checkpoint(tensors, out, meta, overwrite)
