@@ -10,7 +10,8 @@
 #   pick some of them, e.g. raw64 raw128; GEN= another generator checkpoint; GEN_SIZE= the
 #   largest size the generator runs at, default 64, e.g. 128 for one trained at 64 and 128 px
 #   as the pipeline runs it; DATA= another training-scene folder than data/train128, e.g. the
-#   subset a generator was trained on)
+#   subset a generator was trained on; SPLAT= the Gaussians drawn at that multiple of their
+#   scales, `train curate --splat-scale`, default 1)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
@@ -24,7 +25,8 @@ mkdir -p "$DIR"
 curate() {  # NAME DATA VIEWS SIZE REFINE_STEPS
   [ "$WANT" = "  " ] || [[ "$WANT" == *" $1 "* ]] || return 0
   [ -f "$DIR/$1.safetensors" ] || $P train curate --data $2 --out "$DIR/$1.safetensors" \
-    --views $3 --size $4 --generator-size ${GEN_SIZE:-64} --refine-steps $5 ${GEN:+--generator "$GEN"}
+    --views $3 --size $4 --generator-size ${GEN_SIZE:-64} --refine-steps $5 ${GEN:+--generator "$GEN"} \
+    ${SPLAT:+--splat-scale "$SPLAT"}
 }
 curate raw64 $DATA 2,3,4,6 64 0 &
 curate ref128 $DATA 2,4 128 300
