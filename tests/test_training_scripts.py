@@ -153,3 +153,32 @@ def test_stage2_v16_arms_differ_only_by_the_fill(root: Path, arm: str, fill: boo
     assert ("--fill" in train) == fill and "--alpha" in train and "--warp" in train
     bad = _run_script(root, "train_stage2_v16.sh", {"ARM": "both"})
     assert bad.returncode == 1 and "ARM must be fill or ctrl" in bad.stderr
+
+
+def test_stage2_v17_curates_half_size_splats_of_its_subset_then_runs_v16s_fill_recipe(
+    root: Path,
+) -> None:
+    """v17: the subset's scenes curated with --splat-scale 0.5 into runs/s2v17/sets, then
+    v16's fill arm at LPIPS weight 0.1 from v13 on those sets."""
+    (root / "runs" / "s2v16").mkdir(parents=True)
+    (root / "runs" / "s2v16" / "v13.safetensors").write_bytes(b"")
+    r = _run_script(root, "train_stage2_v17.sh", {"SCENES": "10000-10001 20000-20000"}, "9")
+    assert r.returncode == 0, r.stderr
+    lines = [line.split() for line in r.stdout.splitlines()]
+    curates = [a for a in lines if a[:2] == ["train", "curate"]]
+    assert {a[a.index("--out") + 1] for a in curates} == {
+        "runs/s2v17/sets/raw64.safetensors", "runs/s2v17/sets/raw128.safetensors",
+    }  # fmt: skip
+    for a in curates:
+        assert a[a.index("--data") + 1] == "data/s2v16_scenes"
+        assert a[a.index("--splat-scale") + 1] == "0.5"
+    train = next(a for a in lines if a[:2] == ["train", "improve"])
+    assert train[train.index("--init") + 1] == "runs/s2v16/v13.safetensors"
+    assert train[train.index("--out") + 1] == "runs/s2v17/run"
+    assert train[train.index("--lpips-weight") + 1] == "0.1" and "--fill" in train
+    assert train[train.index("--data") + 1].split(",") == [
+        "runs/s2v17/sets/raw64.safetensors", "runs/s2v17/sets/raw128.safetensors",
+    ]  # fmt: skip
+    assert sorted(_links(root / "data" / "s2v16_scenes")) == [
+        "near_far_020000", "open_010000", "room_010001",
+    ]  # fmt: skip
