@@ -91,7 +91,7 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
             # as the pipeline runs it: at most the weights' trained size (--generator-size)
             g = model.reconstruct_pruned(
                 inp_images, inp_cams, at.near, at.far, generator_height=args.generator_size
-            ).gaussians
+            ).gaussians.with_scale_factor(args.splat_scale)  # every render below at that scale
             if args.flicker_frames and size == args.sizes[0]:
                 flicker_rows.append(
                     _flicker_row(improvers, g, inp_images, inp_cams, cams, scene, size, args)
@@ -245,6 +245,13 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="also the flicker of the raw and enhanced paths with their holes filled "
         "(prosplat.render.hole_fill), each against the raw renders' flicker",
+    )
+    p.add_argument(
+        "--splat-scale",
+        type=float,
+        default=1.0,
+        help="draw the generator's Gaussians at this multiple of their scales throughout "
+        "(render_view's splat_scale; default 1), e.g. 0.5 for a model trained on such renders",
     )
     p.add_argument("--scenes", type=int, default=None, help="at most N scenes per root")
     p.add_argument("--out", type=Path, required=True)
