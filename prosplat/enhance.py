@@ -39,12 +39,13 @@ from prosplat.render import render
 from prosplat.render.hole_fill import fill_colour
 
 #: The splat scale (:meth:`Gaussians.with_scale_factor`) for the generator's *unrefined*
-#: Gaussians in views whose holes do not show black: filled (``fill_holes``) or enhanced (the
-#: shipped stage 2 fills before it enhances). The generator sizes its Gaussians to cover the
-#: gaps between them on black; with the gaps filled, half that footprint is sharper.
-#: Calibrated on the 8 validation scenes (data/val128, 64 px, 4 inputs): filled 18.74 ->
-#: 19.23 dB, enhanced 20.31 -> 20.45 dB; refined Gaussians, fitted at their own size, gain
-#: nothing from it (BENCHMARKS "Splat scale").
+#: Gaussians in a raw view whose holes are filled (``fill_holes``). The generator sizes its
+#: Gaussians to cover the gaps between them on black; with the gaps filled, half that
+#: footprint is sharper. Chosen on the 8 validation scenes (data/val128, 64 px, 4 inputs:
+#: filled 18.74 -> 19.23 dB); on the 24 test scenes +0.54 / +0.27 / +0.23 dB at 64 / 128 /
+#: 256 px, every scene type gaining. Stage 2 v16, trained on full-size splats, is mixed on
+#: them (+0.08 / -0.00 dB, some types lose); refined Gaussians, fitted at their own size,
+#: gain nothing (BENCHMARKS "Splat scale").
 SPLAT_SCALE = 0.5
 
 
@@ -255,8 +256,8 @@ def render_view(
     stage 2 takes. Not with a ``background``.
     ``splat_scale``: the Gaussians render with their scales multiplied by it
     (:meth:`Gaussians.with_scale_factor`; ``raw``, ``alpha``, ``depth`` and stage 2's input
-    are that render). :data:`SPLAT_SCALE` suits the generator's unrefined Gaussians when the
-    holes are filled or the view is enhanced; 1 (the default) is the Gaussians as they are."""
+    are that render). :data:`SPLAT_SCALE` suits the generator's unrefined Gaussians in a filled
+    raw view; 1 (the default) is the Gaussians as they are."""
     options = options or EnhanceOptions()
     as_given, gaussians = gaussians, gaussians.with_scale_factor(splat_scale)
     if fill_holes and background is not None:

@@ -198,7 +198,7 @@ class Gaussians:
         """Every Gaussian's standard deviations multiplied by ``factor`` (> 0), nothing else
         changed: 3DGS's render-time "scaling modifier". The generator sizes its Gaussians to
         cover the pixels between them on a black background; where the holes are filled
-        anyway (pull-push, stage 2) smaller ones render sharper (:data:`prosplat.enhance.SPLAT_SCALE`)."""
+        anyway (pull-push) smaller ones render sharper (:data:`prosplat.enhance.SPLAT_SCALE`)."""
         if isinstance(factor, bool) or not (math.isfinite(factor) and factor > 0):
             raise ValueError(f"scale factor must be a finite number > 0, got {factor!r}")
         if factor == 1:

@@ -601,7 +601,8 @@ class ProSplat:
         (:mod:`prosplat.render.hole_fill`; +3.1 / +3.5 / +4.1 dB at 64 / 128 / 256 px on the
         test scenes). ``splat_scale``: the Gaussians' scales multiplied by it for this render
         (:data:`prosplat.enhance.SPLAT_SCALE` suits the generator's unrefined Gaussians in a
-        filled or enhanced view; refined ones are best left at 1).
+        filled raw view; refined ones, and views the shipped stage 2 enhances, are best left at
+        1).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with
