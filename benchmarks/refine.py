@@ -59,6 +59,12 @@ VARIANTS: dict[str, RefineOptions] = {
     ),
     "means fixed": RefineOptions.unregularised(freeze_means_steps=10**9),
     "opacity 0.1": RefineOptions.unregularised(opacity_weight=0.1),
+    "cross 0.3": RefineOptions.unregularised(cross_view_weight=0.3),
+    "cross 1": RefineOptions.unregularised(cross_view_weight=1.0),
+    "cross 3": RefineOptions.unregularised(cross_view_weight=3.0),
+    "cross 1, means lr x10": RefineOptions.unregularised(
+        cross_view_weight=1.0, lr=replace(RefineOptions().lr, means=RefineOptions().lr.means * 10)
+    ),
 }
 
 
@@ -100,7 +106,7 @@ def sweep(args) -> None:
         pruned = model.reconstruct_pruned(
             imgs, cams, near, far, generator_height=args.generator_size or 0
         )
-        g, depths = pruned.gaussians, pruned.depths_for(imgs)
+        g, depths, view_index = pruned.gaussians, pruned.depths_for(imgs), pruned.view_index
         for key, kw in (("pasted reference", dict(enhance=False, paste=True)),):
             for m, v in score(model, g, imgs, cams, timgs, tcams, **kw).items():
                 rows[key, False][m].append(v)
@@ -111,7 +117,16 @@ def sweep(args) -> None:
         plan += [(name, n, None) for name in ablations for n in ablation_steps]
         plan += [(name, None, sec) for name in names for sec in seconds]
         for name, n, sec in plan:
-            r = refine(g, imgs, cams, steps=n, seconds=sec, depths=depths, options=VARIANTS[name])
+            r = refine(
+                g,
+                imgs,
+                cams,
+                steps=n,
+                seconds=sec,
+                depths=depths,
+                view_index=view_index,
+                options=VARIANTS[name],
+            )
             label = f"refine {n}, {name}" if sec is None else f"refine {sec:g} s, {name}"
             rows[label, False]["steps"].append(r.stats.steps)
             for enh in (False, True):

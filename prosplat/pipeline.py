@@ -153,6 +153,7 @@ class PrunedReconstruction:
     stats: dict
     generator_s: float
     prune_s: float
+    view_index: Tensor | None = None  # [N] the input view that predicted each kept Gaussian
 
     def depths_for(self, images: Tensor) -> Tensor | None:
         """``depths`` when they match ``images [V,3,H,W]`` in size (refinement's depth term
@@ -212,6 +213,9 @@ class ProSplat:
         #: place the Gaussians at the inputs' own size when the generator matches at a smaller
         #: one (:meth:`generate`); False: at the matching size, as before 2026-11-24
         self.full_res_gaussians = True
+        #: a local plane sweep around the generator's depth (:mod:`prosplat.depth_sweep`) moves
+        #: its Gaussians to where the inputs match (:meth:`generate`); None: off
+        self.depth_sweep = None
         self.improver = improver
         if improver is not None:
             improver.to(self.device).eval()
@@ -407,14 +411,22 @@ class ProSplat:
         ):
             gen_images, gen_cameras = self.generator_views(images, cameras, height)
             out = self.reconstruct_full(gen_images, gen_cameras, near, far, grad=grad)
-            return out, gen_cameras
+            return self._swept(out, gen_images, gen_cameras), gen_cameras
         from prosplat.data.scene import resize_views, resized_width
 
         top = min(h, MAX_GAUSSIAN_SCALE * int(height)) // 32 * 32
         images, cameras = resize_views(images, cameras, top)  # unchanged when already there
         match = (int(height), resized_width(images.shape[-1], images.shape[-2], int(height)))
         out = self.reconstruct_full(images, cameras, near, far, grad=grad, match_size=match)
-        return out, cameras
+        return self._swept(out, images, cameras), cameras
+
+    def _swept(self, out: GeneratorOutput, images: Tensor, cameras: list[Camera]):
+        """``out`` after :attr:`depth_sweep` (unchanged when it is None)."""
+        if self.depth_sweep is None:
+            return out
+        from prosplat.depth_sweep import snap_output
+
+        return snap_output(out, images.to(self.device), cameras, self.depth_sweep)
 
     def reconstruct(
         self,
@@ -508,11 +520,13 @@ class ProSplat:
         out, gen_cameras = self.generate(images, cameras, near, far, generator_height)
         t1 = time.perf_counter()
         depths = out.depths[0].detach()
-        g, _, stats = prune_pixel_aligned(
+        g, keep, stats = prune_pixel_aligned(
             out.gaussians(0).detach(), depths, gen_cameras, budget=budget
         )
+        v, h, w = depths.shape
+        view_index = torch.arange(v, device=keep.device).repeat_interleave(h * w)[keep]
         return PrunedReconstruction(g, depths, gen_cameras, stats, t1 - t0,
-                                    time.perf_counter() - t1)  # fmt: skip
+                                    time.perf_counter() - t1, view_index)  # fmt: skip
 
     def reconstruct_refined(
         self,
@@ -567,6 +581,7 @@ class ProSplat:
             progress=progress,
             cancel=cancel,
             depths=pruned.depths_for(images),
+            view_index=pruned.view_index,
             options=options,
         )
         result.stats.generator_s = pruned.generator_s

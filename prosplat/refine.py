@@ -92,6 +92,14 @@ class RefineOptions:
             starting scale (blobs that smear novel views) costs; shrinking is free. 0: off.
         freeze_means_steps: the means stay fixed for this many first steps, so colours and
             opacities settle before geometry moves (0: off).
+        cross_view_weight: weight of the cross-view term: each step also renders the step's
+            input view from the *other* views' Gaussians alone and adds its L1 to the image,
+            over the pixels they cover (alpha > 0.5). A view's own pixel-aligned Gaussians
+            project onto their pixels at any depth, so fitting a view with them in place
+            says nothing about where its surfaces are; seen from another camera they land
+            where their depth puts them, so this term is the multi-view photometric match
+            that moves geometry. Needs ``view_index`` (which input view predicted each
+            Gaussian); 0 or no ``view_index`` turns it off.
         sh_degree: SH degree fitted: an int 0-3, or ``"auto"`` (:func:`sh_degree_for_views`:
             raised only when the views allow). Bands above the Gaussians' own start at zero.
         background: RGB behind the Gaussians (default black, as the generator renders).
@@ -118,6 +126,7 @@ class RefineOptions:
     opacity_weight: float = 0.0
     scale_weight: float = 0.0
     freeze_means_steps: int = 0
+    cross_view_weight: float = 0.0
     sh_degree: int | str = "auto"
     background: tuple[float, float, float] | None = None
     cull: bool = False
@@ -127,11 +136,18 @@ class RefineOptions:
     @classmethod
     def unregularised(cls, **changes) -> RefineOptions:
         """The plain 3DGS loop: every regulariser off (what per-scene optimisation runs)."""
-        base = cls(depth_weight=0.0, opacity_weight=0.0, scale_weight=0.0, freeze_means_steps=0)
+        base = cls(
+            depth_weight=0.0,
+            opacity_weight=0.0,
+            scale_weight=0.0,
+            freeze_means_steps=0,
+            cross_view_weight=0.0,
+        )
         return replace(base, **{"sh_degree": 0, **changes})
 
     def check(self) -> None:
-        for name in ("ssim_weight", "depth_weight", "opacity_weight", "scale_weight"):
+        names = ("ssim_weight", "depth_weight", "opacity_weight", "scale_weight")
+        for name in (*names, "cross_view_weight"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"RefineOptions.{name} must be a finite number >= 0, got {value}")
@@ -357,6 +373,24 @@ def _check_budget(steps, seconds) -> None:
         raise ValueError(f"refine: seconds must be a finite number > 0, got {seconds!r}")
 
 
+def _check_view_index(view_index: Tensor | None, n: int, v: int) -> None:
+    if view_index is None:
+        return
+    if (
+        not isinstance(view_index, Tensor)
+        or tuple(view_index.shape) != (n,)
+        or view_index.is_floating_point()
+        or view_index.dtype == torch.bool
+    ):
+        shape = list(view_index.shape) if isinstance(view_index, Tensor) else type(view_index)
+        raise ValueError(
+            f"refine: view_index must be an integer [N={n}] tensor (the input view that "
+            f"predicted each Gaussian), got {shape}"
+        )
+    if n and (int(view_index.min()) < 0 or int(view_index.max()) >= v):
+        raise ValueError(f"refine: view_index values must lie in [0, {v}) (one per input view)")
+
+
 def _check_depths(depths: Tensor | None, images: Tensor) -> None:
     if depths is None:
         return
@@ -382,6 +416,7 @@ def refine(
     progress: Callable[[int, int | None, float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     depths: Tensor | None = None,
+    view_index: Tensor | None = None,
     options: RefineOptions | None = None,
 ) -> RefineResult:
     """Fit ``gaussians`` to the input views ``images`` [V,3,H,W] seen by ``cameras``.
@@ -397,6 +432,8 @@ def refine(
             ``steps`` or None under a time budget, that step's photometric loss.
         cancel: called before every step; True stops the loop and returns what was fitted.
         depths: [V,H,W] the generator's depth per input view (for the depth term; 0 = none).
+        view_index: [N] the input view that predicted each Gaussian (for the cross-view term;
+            :attr:`prosplat.pipeline.PrunedReconstruction.view_index`).
         options: :class:`RefineOptions` (the measured defaults).
 
     Returns:
@@ -418,6 +455,7 @@ def refine(
     _check_budget(steps, seconds)
     check_images(images, cameras)
     _check_depths(depths, images)
+    _check_view_index(view_index, len(gaussians), len(cameras))
     options.check()
     for name, fn in (("progress", progress), ("cancel", cancel)):
         if fn is not None and not callable(fn):
@@ -442,6 +480,10 @@ def refine(
     use_depth = depths is not None and options.depth_weight > 0
     if use_depth:
         depths = depths.detach().to(device=device, dtype=dtype)
+    others: list[Tensor] = []  # others[i]: the Gaussians the other views predicted
+    if view_index is not None and options.cross_view_weight > 0:
+        vi = view_index.to(device)
+        others = [torch.nonzero(vi != i).squeeze(1) for i in range(v)]
     backend = "cpu-fused" if options.fused_projection and device.type == "cpu" else "auto"
     gen = torch.Generator().manual_seed(int(seed))
     order: list[int] = []
@@ -484,6 +526,17 @@ def refine(
             if bool(valid.any()):
                 rel = (out.depth[valid] - ref[valid]).abs() / ref[valid]
                 loss = loss + options.depth_weight * rel.mean()
+        if others and len(others[i]):
+            cross = render(Gaussians(*(t[others[i]] for t in g.tensors().values())), cameras[i],
+                           bg, backend)  # fmt: skip
+            covered = cross.alpha.detach() > 0.5  # [H,W]
+            if bool(covered.any()):
+                a = cross.alpha.clamp_min(0.5)[None]  # [1,H,W]
+                rgb = cross.rgb if bg is None else cross.rgb - bg[:, None, None] * (1 - a)
+                # [3,H,W] the colour of what the other views put there, un-composited so that
+                # partial coverage is not read as a darker surface
+                l1 = (rgb / a - images[i]).abs().mean(0)[covered].mean()
+                loss = loss + options.cross_view_weight * l1
         if options.opacity_weight > 0:
             loss = loss + options.opacity_weight * g.opacities.mean()
         if options.scale_weight > 0:

@@ -80,11 +80,21 @@ def _box(x: Tensor) -> Tensor:
     return F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
 
 
-def _sweep_cost(images: Tensor, cameras: list[Camera], ref: int, depths: Tensor) -> Tensor:
+def _sweep_cost(
+    images: Tensor,
+    cameras: list[Camera],
+    ref: int,
+    depths: Tensor,
+    best_views: int | None = None,
+) -> Tensor:
     """[D, H, W] matching cost ``1 - ZNCC + COLOR_WEIGHT * |mean colour difference|``.
 
-    The cost of a candidate is the mean over the source views in which it lands inside the
-    image (in front of the camera); where none does, it is 1 (uncorrelated, no information).
+    ``depths``: [D] candidate depths for every pixel (fronto-parallel planes) or [D,H,W] a
+    candidate list per pixel (a local sweep around a depth map). The cost of a candidate is
+    the mean over the source views in which it lands inside the image (in front of the
+    camera); where none does, it is 1 (uncorrelated, no information). ``best_views``: per
+    pixel, only the that many source views whose best candidate matches best are averaged
+    (a view that sees another surface there, occluded, is left out); None: all of them.
     """
     v, _, h, w = images.shape
     d = depths.shape[0]
@@ -94,17 +104,15 @@ def _sweep_cost(images: Tensor, cameras: list[Camera], ref: int, depths: Tensor)
     mu_r = _box(img)
     var_r = (_box(img * img) - mu_r * mu_r).sum(1)  # [1,H,W], summed over channels
     uv = cam.pixel_centers(torch.float64).to(device)  # [H,W,2]
-    cost_sum = torch.zeros(d, h, w, dtype=dtype, device=device)
-    n_valid = torch.zeros(d, h, w, dtype=dtype, device=device)
+    sources = [s for s in range(v) if s != ref]
+    cost = torch.ones(len(sources), d, h, w, dtype=dtype, device=device)  # [S,D,H,W]
+    valid_all = torch.zeros(len(sources), d, h, w, dtype=torch.bool, device=device)
     chunk = max(1, _CHUNK_PIXELS // (h * w))
     for k0 in range(0, d, chunk):
-        dk = depths[k0 : k0 + chunk].to(torch.float64)  # [C]
-        pts = cam.unproject(
-            uv[None].expand(dk.shape[0], h, w, 2), dk[:, None, None].expand(-1, h, w)
-        )
-        for s in range(v):
-            if s == ref:
-                continue
+        dk = depths[k0 : k0 + chunk].to(torch.float64)  # [C] or [C,H,W]
+        dk = dk[:, None, None].expand(-1, h, w) if dk.ndim == 1 else dk
+        pts = cam.unproject(uv[None].expand(dk.shape[0], h, w, 2), dk)
+        for n, s in enumerate(sources):
             src = cameras[s]
             uv_s, z_s = src.project(pts)  # [C,H,W,2], [C,H,W]
             gx = uv_s[..., 0] / src.width * 2 - 1  # align_corners=False: centres at +0.5
@@ -124,14 +132,21 @@ def _sweep_cost(images: Tensor, cameras: list[Camera], ref: int, depths: Tensor)
             cov = (_box(warped * img) - mu_s * mu_r).sum(1)
             zncc = cov / torch.sqrt(var_r.clamp_min(0) * var_s.clamp_min(0) + ZNCC_EPS)
             c = 1 - zncc.clamp(-1, 1) + COLOR_WEIGHT * (mu_s - mu_r).abs().mean(1)
-            c = c * valid
-            cost_sum[k0 : k0 + chunk] += c
-            n_valid[k0 : k0 + chunk] += valid.to(dtype)
-    return torch.where(n_valid > 0, cost_sum / n_valid.clamp_min(1), torch.ones_like(cost_sum))
+            cost[n, k0 : k0 + chunk] = c
+            valid_all[n, k0 : k0 + chunk] = valid
+    use = valid_all  # [S,D,H,W] which views' costs are averaged
+    if best_views is not None and len(sources) > best_views:
+        best = torch.where(valid_all, cost, torch.full_like(cost, math.inf)).amin(1)  # [S,H,W]
+        rank = best.argsort(0).argsort(0)  # [S,H,W] 0 = the view that matches best
+        use = valid_all & (rank < best_views)[:, None]
+    n_use = use.sum(0)  # [D,H,W]
+    total = (cost * use).sum(0)
+    return torch.where(n_use > 0, total / n_use.clamp_min(1), torch.ones_like(total))
 
 
-def _winner_take_all(cost: Tensor, near: float, far: float) -> tuple[Tensor, Tensor]:
-    """[D,H,W] cost -> depth [H,W] (parabola-refined in inverse depth) and confidence [H,W].
+def winner_take_all(cost: Tensor) -> tuple[Tensor, Tensor]:
+    """[D,H,W] cost -> the winning candidate [H,W] as a fractional index (a parabola through
+    the best cost and its two neighbours, at most half a step off) and confidence [H,W].
 
     Confidence = ``(1 - exp(-margin / CONF_TAU)) * clamp(ZNCC_best, 0, 1)`` where the margin is
     the cost gap to the best candidate that is not the winner or its neighbours: a unique,
@@ -155,7 +170,14 @@ def _winner_take_all(cost: Tensor, near: float, far: float) -> tuple[Tensor, Ten
     offset = torch.where(
         interior, 0.5 * (c_m - c_p) / denom.clamp_min(1e-9), torch.zeros_like(denom)
     )
-    pos = (k.to(cost.dtype) + offset.clamp(-0.5, 0.5)) / max(d - 1, 1)  # [0,1] in inverse depth
+    return k.to(cost.dtype) + offset.clamp(-0.5, 0.5), conf
+
+
+def _winner_take_all(cost: Tensor, near: float, far: float) -> tuple[Tensor, Tensor]:
+    """[D,H,W] cost of candidates uniform in inverse depth from near to far -> depth [H,W]
+    (parabola-refined in inverse depth) and confidence [H,W] (:func:`winner_take_all`)."""
+    k, conf = winner_take_all(cost)
+    pos = k / max(cost.shape[0] - 1, 1)  # [0,1] in inverse depth
     inv = 1 / near + (1 / far - 1 / near) * pos
     return 1 / inv, conf
 
