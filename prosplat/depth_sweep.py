@@ -52,13 +52,20 @@ class DepthSweepOptions:
             corrections are averaged, weighted by confidence (0: each pixel keeps its own
             winner). Per-pixel winners are noisy, and neighbours moved apart open cracks that
             other views see through; the generator's errors are smooth over a surface.
+        max_height: images taller than this are swept at this height (antialiased) and the
+            correction is upsampled: a 256-px sweep costs 4-5x a 128-px one and the smoothed
+            correction has no detail that needs it (None: always at the images' size).
+
+    The defaults are the best of those tried on the 8 validation scenes (data/val128) at 64
+    and 128 px with generator v7 and stage 2 v16 (BENCHMARKS.md, "Depth sweep").
     """
 
     span: float = 0.3
     candidates: int = 25
     best_views: int | None = None
-    min_confidence: float = 0.0
-    smooth: float = 0.0
+    min_confidence: float = 0.4
+    smooth: float = 0.03
+    max_height: int | None = 128
 
     def check(self) -> None:
         if not (math.isfinite(self.span) and 0 < self.span <= 2):
@@ -76,6 +83,13 @@ class DepthSweepOptions:
             )
         if not (math.isfinite(self.smooth) and 0 <= self.smooth <= 1):
             raise ValueError(f"DepthSweepOptions.smooth must be in [0, 1], got {self.smooth}")
+        if self.max_height is not None and (
+            int(self.max_height) != self.max_height or self.max_height < 32
+        ):
+            raise ValueError(
+                f"DepthSweepOptions.max_height must be None or an integer >= 32, got "
+                f"{self.max_height}"
+            )
         if not (0 <= self.min_confidence < 1):
             raise ValueError(
                 f"DepthSweepOptions.min_confidence must be in [0, 1), got {self.min_confidence}"
@@ -104,15 +118,38 @@ def sweep_depths(
         raise ValueError(f"depths must be [V,H,W] = [{v},{h},{w}], got {list(depths.shape)}")
     if len(cameras) != v:
         raise ValueError(f"one camera per image: got {len(cameras)} cameras for {v} images")
-    moved = torch.zeros(v, h, w, dtype=torch.bool, device=depths.device)
     if v < 2:
-        return depths.clone(), moved
+        return depths.clone(), torch.zeros(v, h, w, dtype=torch.bool, device=depths.device)
+    top = options.max_height
+    if top is None or h <= top:
+        log_f, take = _corrections(images, cameras, depths, options)
+    else:  # sweep a smaller copy; the correction is smooth, so it is upsampled
+        from prosplat.data.scene import resize_views
+
+        small, small_cams = resize_views(images, cameras, int(top))
+        size = tuple(small.shape[-2:])
+        small_depths = F.interpolate(depths[:, None], size=size, mode="nearest")[:, 0]
+        log_f, take = _corrections(small, small_cams, small_depths, options)
+        log_f = F.interpolate(log_f[:, None], size=(h, w), mode="bilinear", align_corners=False)
+        take = F.interpolate(take[:, None].float(), size=(h, w), mode="nearest")[:, 0] > 0.5
+        log_f, take = log_f[:, 0], take & (depths > 0)
+    new = torch.where(take, (depths.to(torch.float64) * torch.exp(log_f)).to(depths.dtype), depths)
+    return new, take
+
+
+def _corrections(
+    images: Tensor, cameras: list[Camera], depths: Tensor, options: DepthSweepOptions
+) -> tuple[Tensor, Tensor]:
+    """[V,H,W] log depth corrections (float64) and [V,H,W] where they apply, at the images'
+    size (:func:`sweep_depths`)."""
+    v, _, h, w = images.shape
     best_views = options.best_views or math.ceil((v - 1) / 2)
     k = int(options.candidates)
     log_step = torch.linspace(-options.span, options.span, k, dtype=torch.float64)
     factors = torch.exp(log_step).to(device=depths.device)  # [K]
     images = images.to(torch.float32)
-    new = depths.clone()
+    out = torch.zeros(v, h, w, dtype=torch.float64, device=depths.device)
+    where = torch.zeros(v, h, w, dtype=torch.bool, device=depths.device)
     for i in range(v):
         base = depths[i].to(torch.float64).clamp_min(1e-6)  # [H,W]
         cand = base[None] * factors[:, None, None]  # [K,H,W]
@@ -129,9 +166,8 @@ def sweep_depths(
             # where little was matched nearby the correction fades out toward 0
             log_f = num / (den + 0.05)
             take = depths[i] > 0
-        new[i] = torch.where(take, (base * torch.exp(log_f)).to(depths.dtype), depths[i])
-        moved[i] = take
-    return new, moved
+        out[i], where[i] = log_f, take
+    return out, where
 
 
 def _blur(x: Tensor, sigma: float) -> Tensor:

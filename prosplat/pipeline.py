@@ -241,6 +241,7 @@ class ProSplat:
         *,
         generator: str | Path | None = None,
         generator_size: tuple[int, int] | None = None,
+        depth_sweep=None,
     ) -> ProSplat:
         """Load a checkpoint written by :meth:`save` (or the training command).
 
@@ -257,7 +258,25 @@ class ProSplat:
             improve: the stage-2 checkpoint: None loads the shipped ``improve_tiny`` weights
                 when they exist (else no improvement model), a path loads that file, False
                 loads none.
+            depth_sweep: :attr:`depth_sweep`: None, the default, is on
+                (:class:`~prosplat.depth_sweep.DepthSweepOptions`) for prosplat generators,
+                whose depth it measurably improves (BENCHMARKS.md, "Depth sweep"), and off for
+                DepthSplat, where it is not measured; True / False force it on / off, and a
+                ``DepthSweepOptions`` sets it.
         """
+        from prosplat.depth_sweep import DepthSweepOptions
+
+        if depth_sweep is True or (depth_sweep is None and generator is None):
+            depth_sweep = DepthSweepOptions()
+        elif depth_sweep is False or depth_sweep is None:
+            depth_sweep = None
+        elif not isinstance(depth_sweep, DepthSweepOptions):
+            raise ValueError(
+                "depth_sweep must be None, True, False or a DepthSweepOptions, got "
+                f"{type(depth_sweep).__name__}"
+            )
+        else:
+            depth_sweep.check()
         if generator is not None:
             if path is not None or config is not None:
                 raise ValueError(
@@ -267,6 +286,7 @@ class ProSplat:
 
             gen = DepthSplatGenerator(load_depthsplat(generator), size=generator_size)
             model = cls(device="cpu", improver=_load_improver(improve), generator=gen)
+            model.depth_sweep = depth_sweep
             return model.to(device) if device is not None else model
         if path is None:
             path = DEFAULT_WEIGHTS
@@ -300,6 +320,7 @@ class ProSplat:
             model.generator.load_state_dict(state, strict=True)
         except RuntimeError as e:
             raise ValueError(f"{path} does not match the generator it describes: {e}") from e
+        model.depth_sweep = depth_sweep
         if device is not None:
             model.to(device)
         return model

@@ -93,15 +93,17 @@ def test_the_sweep_finds_the_surface_the_views_agree_on(blender_scene):
     start = wrong_depths(depths)
     before = abs_rel(start, depths)
     for options in (
-        DepthSweepOptions(smooth=0.03, min_confidence=0.4),
-        DepthSweepOptions(smooth=0.03),
-        DepthSweepOptions(),
+        DepthSweepOptions(),  # the defaults: smoothed, where confident
+        DepthSweepOptions(smooth=0.0, min_confidence=0.0),  # every pixel its own winner
     ):
         new, moved = sweep_depths(images, cams, start, options)
         assert new.shape == start.shape and bool(torch.isfinite(new).all())
         assert float(moved.float().mean()) > 0.2, options
         after = abs_rel(new, depths)
         assert after < 0.7 * before, (options, before, after)  # 0.105 -> 0.062-0.069
+    # swept at half size (32 px: little to match), the correction upsampled to 64 px
+    half, _ = sweep_depths(images, cams, start, DepthSweepOptions(max_height=32))
+    assert half.shape == start.shape and abs_rel(half, depths) < 0.9 * before  # 0.090
     # the truth is a fixed point: what the views agree on stays where it is
     kept, _ = sweep_depths(images, cams, depths, DepthSweepOptions(smooth=0.03))
     assert abs_rel(kept, depths) < 0.02
@@ -169,6 +171,7 @@ def test_the_pipeline_sweeps_when_asked(views):
         (DepthSweepOptions(best_views=0), "best_views"),
         (DepthSweepOptions(min_confidence=1.0), "min_confidence"),
         (DepthSweepOptions(smooth=-0.1), "smooth"),
+        (DepthSweepOptions(max_height=16), "max_height"),
     ],
 )
 def test_bad_options_raise_naming_the_field(views, options, message):

@@ -71,11 +71,18 @@ def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
     small, small_cams = model.generator_views(images, cams)
     assert small.shape[-2:] == (t, t) and (small_cams[0].width, small_cams[0].height) == (t, t)
     assert torch.equal(small_cams[0].center, cams[0].center)  # same camera, scaled intrinsics
-    out, out_cams = model.generate(images, cams, near, far)
+    assert model.depth_sweep is not None  # on by default; off here to compare raw depths
+    sweep, model.depth_sweep = model.depth_sweep, None
+    try:
+        out, out_cams = model.generate(images, cams, near, far)
+    finally:
+        model.depth_sweep = sweep
     assert out.depths.shape[-2:] == (2 * t, 2 * t) and out_cams == cams
     matched = model.reconstruct_full(small, small_cams, near, far).depths[0]
     up = torch.nn.functional.interpolate(1 / matched[:, None], size=(2 * t, 2 * t), mode="bilinear")
     assert torch.allclose(1 / out.depths[0], up[:, 0], rtol=1e-4)  # matched at T px
+    swept, _ = model.generate(images, cams, near, far)  # the sweep moves depth, not the layout
+    assert swept.depths.shape == out.depths.shape and not torch.equal(swept.depths, out.depths)
     assert len(model.reconstruct(images, cams, near, far)) == 3 * 4 * t * t
     native = model.reconstruct(images, cams, near, far, generator_height=0)
     assert len(native) == 3 * 4 * t * t and not torch.allclose(native.means, out.means[0])

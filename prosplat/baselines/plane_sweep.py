@@ -102,7 +102,8 @@ def _sweep_cost(
     cam = cameras[ref]
     img = images[ref : ref + 1]  # [1,3,H,W]
     mu_r = _box(img)
-    var_r = (_box(img * img) - mu_r * mu_r).sum(1)  # [1,H,W], summed over channels
+    # pooling is linear, so the channel sums are taken before it: 1 channel pooled, not 3
+    var_r = _box((img * img).sum(1, keepdim=True))[:, 0] - (mu_r * mu_r).sum(1)  # [1,H,W]
     uv = cam.pixel_centers(torch.float64).to(device)  # [H,W,2]
     sources = [s for s in range(v) if s != ref]
     cost = torch.ones(len(sources), d, h, w, dtype=dtype, device=device)  # [S,D,H,W]
@@ -128,8 +129,8 @@ def _sweep_cost(
             )  # [1,3,C*H,W]
             warped = warped.reshape(3, -1, h, w).transpose(0, 1)  # [C,3,H,W]
             mu_s = _box(warped)
-            var_s = (_box(warped * warped) - mu_s * mu_s).sum(1)  # [C,H,W]
-            cov = (_box(warped * img) - mu_s * mu_r).sum(1)
+            var_s = _box((warped * warped).sum(1, keepdim=True))[:, 0] - (mu_s * mu_s).sum(1)
+            cov = _box((warped * img).sum(1, keepdim=True))[:, 0] - (mu_s * mu_r).sum(1)
             zncc = cov / torch.sqrt(var_r.clamp_min(0) * var_s.clamp_min(0) + ZNCC_EPS)
             c = 1 - zncc.clamp(-1, 1) + COLOR_WEIGHT * (mu_s - mu_r).abs().mean(1)
             cost[n, k0 : k0 + chunk] = c

@@ -53,6 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--low-res-gaussians", action="store_true",
                         help="the generator's Gaussians at the size it runs at, not at the "
                         "evaluation size (the pipeline before 2026-11-24; ProSplat.generate)")  # fmt: skip
+    parser.add_argument("--no-depth-sweep", action="store_true",
+                        help="the generator's depth as it predicts it, without the local plane "
+                        "sweep that moves it to where the inputs match (prosplat.depth_sweep; "
+                        "on by default for prosplat generators)")  # fmt: skip
     parser.add_argument("--improve", default=None,
                         help="improvement-model checkpoint (default shipped)")  # fmt: skip
     parser.add_argument("--compare-improve", action="append", default=[], metavar="LABEL=PATH",
@@ -135,6 +139,8 @@ def command(args: argparse.Namespace) -> str:
         parts.append("--bf16")
     if args.low_res_gaussians:
         parts.append("--low-res-gaussians")
+    if getattr(args, "no_depth_sweep", False):
+        parts.append("--no-depth-sweep")
     if args.resample != "targets":
         parts += ["--resample", args.resample]
     return " ".join(parts + ["--out", str(args.out)])

@@ -107,7 +107,9 @@ class LadderContext:
             from prosplat.pipeline import ProSplat
 
             self._model = ProSplat.from_pretrained(
-                self.options.get("generator"), improve=self.options.get("improve")
+                self.options.get("generator"),
+                improve=self.options.get("improve"),
+                depth_sweep=False if self.options.get("no_depth_sweep") else None,
             )
             self._model.full_res_gaussians = not self.options.get("low_res_gaussians")
         return self._model
