@@ -22,6 +22,10 @@ pixels within 25 % of the truth).
     python benchmarks/input_depth.py --data data/test128 --size 64 \\
         --generator v3=runs/generator_v3.safetensors --generator v4=runs/gen_v4/generator.safetensors
     python benchmarks/input_depth.py --data data/test128 --size 128 --crop 128x64 --no-sweep
+    python benchmarks/input_depth.py --data data/test128 --size 128 --no-sweep --depth-sweep
+
+``reconstruct_full`` is the generator alone: its depth before the pipeline's depth sweep
+(``--depth-sweep`` adds the swept rows).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from prosplat import ProSplat
 from prosplat.baselines.plane_sweep import plane_sweep_depths
 from prosplat.camera import Camera
 from prosplat.data import find_scenes, load_scene
+from prosplat.depth_sweep import sweep_depths
 from prosplat.evaluate import scene_at
 from prosplat.ladder.geometry import resize_depths
 
@@ -83,6 +88,12 @@ def main() -> None:
     )
     ap.add_argument("--no-sweep", action="store_true", help="skip the plane-sweep rows")
     ap.add_argument(
+        "--depth-sweep",
+        action="store_true",
+        help="also score each generator's depth after the local sweep the pipeline runs "
+        "(prosplat.depth_sweep, rows '<model> + depth sweep')",
+    )
+    ap.add_argument(
         "--crop",
         metavar="WxH",
         help="score the centre WxH window of each input (cameras shifted to match)",
@@ -93,7 +104,7 @@ def main() -> None:
     models = {}
     for spec in args.generator or ["shipped="]:
         label, _, path = spec.partition("=")
-        models[label] = ProSplat.from_pretrained(path or None, improve=False)
+        models[label] = ProSplat.from_pretrained(path or None, improve=False, depth_sweep=True)
 
     rows: dict[str, dict[str, list[dict]]] = defaultdict(lambda: defaultdict(list))
     folders = find_scenes(args.data)
@@ -113,6 +124,10 @@ def main() -> None:
             label: m.reconstruct_full(images, cameras, r.near, r.far).depths[0]
             for label, m in models.items()
         }
+        if args.depth_sweep:
+            for label, d in list(preds.items()):
+                swept = sweep_depths(images, cameras, d, models[label].depth_sweep)[0]
+                preds[f"{label} + depth sweep"] = swept
         for label, d in preds.items():
             rows[label][kind].append(depth_scores(d, gt, valid))
         if not args.no_sweep:

@@ -256,7 +256,8 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         cfg.weights, generator=cfg.generator, improve=cfg.improve or True
     )
     t0 = time.perf_counter()
-    recon = model.reconstruct_full(in_images, in_cams, near, far)
+    # the generator at the demo's size, then the depth sweep the pipeline runs by default
+    recon, _ = model.generate(in_images, in_cams, near, far, height=0)
     t_recon = time.perf_counter() - t0
     g_all, depths = recon.gaussians(0), recon.depths[0]
     t0 = time.perf_counter()

@@ -186,3 +186,24 @@ def test_mismatched_shapes_raise(views):
         sweep_depths(images, cams, depths[:, :10])
     with pytest.raises(ValueError, match="one camera per image"):
         sweep_depths(images, cams[:2], depths)
+
+
+def test_on_by_default_for_prosplat_weights_and_switchable():
+    import argparse
+
+    from prosplat.reconstruct import add_common_arguments, load_model
+
+    assert ProSplat.from_pretrained(improve=False).depth_sweep == DepthSweepOptions()
+    assert ProSplat.from_pretrained(improve=False, depth_sweep=False).depth_sweep is None
+    narrow = DepthSweepOptions(span=0.1, candidates=9)
+    assert ProSplat.from_pretrained(improve=False, depth_sweep=narrow).depth_sweep is narrow
+    with pytest.raises(ValueError, match="depth_sweep must be"):
+        ProSplat.from_pretrained(improve=False, depth_sweep="on")
+    with pytest.raises(ValueError, match="span"):
+        ProSplat.from_pretrained(improve=False, depth_sweep=DepthSweepOptions(span=-1.0))
+    parser = argparse.ArgumentParser()
+    add_common_arguments(parser)
+    for flags, on in (([], True), (["--no-depth-sweep"], False)):
+        args = parser.parse_args(["some/scene", "--out", "unused", *flags])
+        args.improve = None
+        assert (load_model(args).depth_sweep is not None) == on, flags
