@@ -170,3 +170,20 @@ def test_optimize_rejects_bad_input():
         optimize_gaussians(
             images, [Camera.from_intrinsics(10, 10, 8, 8, 16, 16)], NEAR, FAR, steps=1
         )
+
+
+def test_box_mean_is_the_pooling_it_replaces():
+    """plane_sweep._box (running sums) against avg_pool2d with shrinking border windows, on
+    odd sizes, batches and a non-contiguous view (how the sweep calls it)."""
+    import torch.nn.functional as F
+
+    from prosplat.baselines.plane_sweep import WINDOW, _box
+
+    g = torch.Generator().manual_seed(0)
+    for shape in ((1, 3, 7, 5), (4, 1, 33, 64), (2, 3, 3, 3)):
+        x = torch.rand(shape, generator=g)
+        ref = F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
+        assert torch.allclose(_box(x), ref, atol=2e-6), shape
+    x = torch.rand(3, 5, 16, 16, generator=g).transpose(0, 1)
+    ref = F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
+    assert torch.allclose(_box(x), ref, atol=2e-6)

@@ -75,9 +75,29 @@ def _depth_candidates(near: float, far: float, n: int, dtype, device) -> Tensor:
     return (1 / inv).to(dtype=dtype, device=device)
 
 
+def _window_counts(n: int, r: int, like: Tensor) -> Tensor:
+    """[n] how many of positions i-r..i+r lie in 0..n-1 (a border window's size)."""
+    i = torch.arange(n, device=like.device)
+    return ((i + r).clamp(max=n - 1) - (i - r).clamp(min=0) + 1).to(like.dtype)
+
+
+def _box_sum_last(x: Tensor, r: int) -> Tensor:
+    """Sum over positions i-r..i+r of the last dimension (zeros beyond it), by a running
+    sum: two passes whatever the window, where a pooling kernel reads every window."""
+    c = F.pad(x, (r + 1, r)).cumsum(-1)
+    return c[..., 2 * r + 1 :] - c[..., : -2 * r - 1]
+
+
 def _box(x: Tensor) -> Tensor:
-    """Mean over the WINDOW x WINDOW neighbourhood (border windows shrink, not zero-pad)."""
-    return F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
+    """Mean over the WINDOW x WINDOW neighbourhood (border windows shrink, not zero-pad):
+    ``avg_pool2d(x, WINDOW, 1, WINDOW // 2, count_include_pad=False)`` to float rounding
+    (tests/test_baselines.py), at a third of its time (it was half of a sweep's)."""
+    r = WINDOW // 2
+    h, w = x.shape[-2:]
+    y = _box_sum_last(x, r)
+    y = _box_sum_last(y.transpose(-1, -2), r).transpose(-1, -2)
+    count = _window_counts(h, r, x)[:, None] * _window_counts(w, r, x)[None, :]  # [H,W]
+    return y / count
 
 
 def _sweep_cost(
@@ -108,16 +128,31 @@ def _sweep_cost(
     sources = [s for s in range(v) if s != ref]
     cost = torch.ones(len(sources), d, h, w, dtype=dtype, device=device)  # [S,D,H,W]
     valid_all = torch.zeros(len(sources), d, h, w, dtype=torch.bool, device=device)
+    # A pixel's point at depth z is C + z·ray (ray = its unprojection at z = 1 minus the
+    # centre C), so in a source camera it is a + z·b with a = R_s·C + t_s and b = R_s·ray:
+    # per candidate one multiply-add per coordinate, no matrix product (float64 once, here).
+    centre = cam.unproject(uv[:1, :1], torch.zeros(1, 1, dtype=torch.float64, device=device))
+    ray = cam.unproject(uv, torch.ones(h, w, dtype=torch.float64, device=device)) - centre
+    along = []  # per source: a [3], b [H,W,3], fx, skew, cx, fy, cy
+    for s in sources:
+        src = cameras[s]
+        R, t = src.R.to(ray), src.t.to(ray)
+        a = (R @ centre.reshape(3) + t).to(dtype)
+        b = (ray @ R.T).to(dtype)
+        K = src.K.to(torch.float64)
+        along.append((a, b, *(float(K[i, j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2)))))
     chunk = max(1, _CHUNK_PIXELS // (h * w))
     for k0 in range(0, d, chunk):
-        dk = depths[k0 : k0 + chunk].to(torch.float64)  # [C] or [C,H,W]
+        dk = depths[k0 : k0 + chunk].to(dtype)  # [C] or [C,H,W]
         dk = dk[:, None, None].expand(-1, h, w) if dk.ndim == 1 else dk
-        pts = cam.unproject(uv[None].expand(dk.shape[0], h, w, 2), dk)
         for n, s in enumerate(sources):
             src = cameras[s]
-            uv_s, z_s = src.project(pts)  # [C,H,W,2], [C,H,W]
-            gx = uv_s[..., 0] / src.width * 2 - 1  # align_corners=False: centres at +0.5
-            gy = uv_s[..., 1] / src.height * 2 - 1
+            a, b, fx, skew, cx, fy, cy = along[n]
+            x, y, z_s = (a[i] + dk * b[..., i] for i in range(3))  # [C,H,W] each
+            z_safe = torch.where(z_s.abs() > 1e-12, z_s, torch.full_like(z_s, 1e-12))
+            xn, yn = x / z_safe, y / z_safe
+            gx = (fx * xn + skew * yn + cx) / src.width * 2 - 1  # align_corners=False
+            gy = (fy * yn + cy) / src.height * 2 - 1
             valid = (z_s > 0) & (gx.abs() <= 1) & (gy.abs() <= 1)
             grid = torch.stack([gx, gy], -1).clamp(-2, 2).to(dtype)  # clamp keeps it finite
             warped = F.grid_sample(
