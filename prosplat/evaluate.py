@@ -53,7 +53,8 @@ class Score:
 
 def generator_method(model) -> Method:
     def run(images, cameras, near, far):
-        out = model.reconstruct_full(images, cameras, near, far)
+        # the generator as the pipeline runs it at the inputs' size (with its depth sweep)
+        out, _ = model.generate(images, cameras, near, far, height=0)
         return out.gaussians(0), out.depths[0]
 
     return run

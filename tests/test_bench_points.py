@@ -150,7 +150,7 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
         idx = pick_inputs(scene, views)
         cams = [scene.cameras[i] for i in idx]
         near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
-        out = model.reconstruct_full(scene.images[idx], cams, near, far)
+        out, _ = model.generate(scene.images[idx], cams, near, far, height=0)
         depths = out.depths[0]  # [V,H,W]
         view_index = torch.arange(views).repeat_interleave(depths[0].numel())
         g = prune_gaussians(out.gaussians(0), view_index, depths, cams, budget=budget)[0]

@@ -524,7 +524,8 @@ def test_save_load_round_trip(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # not the 0600 of a temp file
-    b = ProSplat.from_pretrained(path)
+    # the file's weights alone: the depth sweep is a loading default (tests/test_depth_sweep.py)
+    b = ProSplat.from_pretrained(path, depth_sweep=False)
     assert b.config == SMALL
     cams = rig(2, 32, 32)
     images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
@@ -536,7 +537,7 @@ def test_save_load_round_trip(tmp_path):
         a.save(path)
     torch.manual_seed(5)
     ProSplat(SMALL).save(path, overwrite=True)
-    c = ProSplat.from_pretrained(path)
+    c = ProSplat.from_pretrained(path, depth_sweep=False)
     assert not torch.equal(c.reconstruct(images, cams, NEAR, FAR).means, ga.means)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gen.safetensors"]  # no temp files left
     with pytest.raises(ValueError, match="different generator config"):

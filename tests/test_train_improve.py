@@ -278,6 +278,11 @@ def test_curation_stores_alpha_and_resizes(setup, tmp_path) -> None:
         tmp_path / "big.safetensors", views=(2,), progress=False, height=64,
     )  # fmt: skip
     assert load_curated(big)["render"].shape[-2:] == (64, 64)
+    # which depth the renders were made from is recorded: swept by default from weights
+    from prosplat.checkpoints import read_checkpoint
+
+    assert read_checkpoint(big, "curated")[1]["depth_sweep"] == "on"
+    assert read_checkpoint(curated, "curated")[1]["depth_sweep"] == "off"  # ProSplat(GEN)
 
 
 def test_curation_at_a_smaller_generator_size_and_training_on_two_sizes(setup, tmp_path) -> None:

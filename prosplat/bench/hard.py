@@ -144,7 +144,7 @@ def _run_pipeline(model, plan: Run, dtypes: Sequence[torch.dtype]) -> dict:
     from prosplat.budget import prune_pixel_aligned
     from prosplat.metrics import psnr
 
-    out = model.reconstruct_full(plan.images, plan.cameras, plan.near, plan.far)
+    out, _ = model.generate(plan.images, plan.cameras, plan.near, plan.far, height=0)
     named = {
         f"generator.{k}": getattr(out, k)
         for k in ("means", "quats", "scales", "opacities", "sh", "depths", "confidence")
@@ -226,7 +226,7 @@ def _run_case(model, case: str, s: CaseScene, dtypes: Sequence[torch.dtype]) -> 
         errors, clear, bad, notes = [], True, [], [plan.note] if plan.note else []
         for label, near, far in plan.attempts:
             try:
-                out = model.reconstruct_full(plan.images, plan.cameras, near, far)
+                out, _ = model.generate(plan.images, plan.cameras, near, far, height=0)
             except Exception as exc:
                 errors.append(f"[{label}] {_describe(exc)}")
                 clear &= _is_clear(exc, plan.words)

@@ -169,6 +169,8 @@ def curate(
         "height": str(height or ""),
         "generator_height": str(generator_height or ""),
         "splat_scale": f"{splat_scale:g}",
+        # the generator's depth after the local sweep (prosplat.depth_sweep) or as predicted
+        "depth_sweep": "on" if getattr(model, "depth_sweep", None) is not None else "off",
         "command": command,
     }
     return write_checkpoint(tensors, out, meta, overwrite)
