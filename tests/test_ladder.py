@@ -593,3 +593,17 @@ def test_splat_rows_draw_the_generator_gaussians_smaller_in_filled_and_enhanced_
     again = render_view(g, cam, inp.images, inp.cameras, ctx.improver("splat"), splat_scale=0.5)
     assert torch.allclose(enh, again.image)
     assert not torch.allclose(enh, rungs["generator"].view(g, cam, inp).image)
+
+
+def test_no_depth_sweep_reaches_the_model_and_the_command_line():
+    import argparse
+
+    from prosplat.ladder.cli import add_arguments, command
+
+    assert LadderContext({"improve": False}).model.depth_sweep is not None  # the default
+    assert LadderContext({"improve": False, "no_depth_sweep": True}).model.depth_sweep is None
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--data", "d", "--no-depth-sweep"])
+    assert "--no-depth-sweep" in command(args).split()
+    assert "--no-depth-sweep" not in command(parser.parse_args(["--data", "d"])).split()
