@@ -108,8 +108,9 @@ def sweep_depths(
 
     Returns:
         new depths [V,H,W] (the given depth where nothing better was found) and moved [V,H,W]
-        bool, the pixels whose depth was replaced. A single view has nothing to match and
-        comes back unchanged.
+        bool, the pixels whose depth was replaced (with ``smooth`` > 0 every pixel with a
+        depth: the smoothed correction reaches all of them, fading to 0 where nothing near
+        matched). A single view has nothing to match and comes back unchanged.
     """
     options = DepthSweepOptions() if options is None else options
     options.check()
