@@ -185,7 +185,10 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
         cameras = [c.resized(w, h) for c in cameras]
     # the generator runs at the size its weights were trained at (its Gaussians render at any
     # size); refinement and the references use the inputs at the Input Size
-    progress(0.35, f"running the generator on {len(cameras)} views, then the Gaussian budget")
+    sweep = ", its depth sweep" if getattr(model, "depth_sweep", None) is not None else ""
+    progress(
+        0.35, f"running the generator on {len(cameras)} views{sweep}, then the Gaussian budget"
+    )
     pruned = model.reconstruct_pruned(
         images.to(device), cameras, params.get("near"), params.get("far"),
         budget=params.get("budget") or None,
