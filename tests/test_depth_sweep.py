@@ -109,10 +109,15 @@ def test_the_sweep_finds_the_surface_the_views_agree_on(blender_scene):
     assert abs_rel(kept, depths) < 0.02
 
 
-def test_one_view_is_left_alone(views):
+def test_one_view_is_left_alone_and_two_by_default(views):
     cams, images, depths = views
     alone, moved = sweep_depths(images[:1], cams[:1], depths[:1])
     assert torch.equal(alone, depths[:1]) and not bool(moved.any())
+    wrong = depths[:2] * 1.1
+    two, moved = sweep_depths(images[:2], cams[:2], wrong)  # min_views = 3: not worth it
+    assert torch.equal(two, wrong) and not bool(moved.any())
+    two, moved = sweep_depths(images[:2], cams[:2], wrong, DepthSweepOptions(min_views=2))
+    assert bool(moved.any()) and not torch.equal(two, wrong)
 
 
 def test_sliding_along_rays_keeps_each_views_own_image(views):
@@ -172,6 +177,7 @@ def test_the_pipeline_sweeps_when_asked(views):
         (DepthSweepOptions(min_confidence=1.0), "min_confidence"),
         (DepthSweepOptions(smooth=-0.1), "smooth"),
         (DepthSweepOptions(max_height=16), "max_height"),
+        (DepthSweepOptions(min_views=1), "min_views"),
     ],
 )
 def test_bad_options_raise_naming_the_field(views, options, message):
