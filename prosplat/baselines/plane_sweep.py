@@ -126,18 +126,23 @@ def _sweep_cost(
     var_r = _box((img * img).sum(1, keepdim=True))[:, 0] - (mu_r * mu_r).sum(1)  # [1,H,W]
     uv = cam.pixel_centers(torch.float64).to(device)  # [H,W,2]
     sources = [s for s in range(v) if s != ref]
-    cost = torch.ones(len(sources), d, h, w, dtype=dtype, device=device)  # [S,D,H,W]
-    valid_all = torch.zeros(len(sources), d, h, w, dtype=torch.bool, device=device)
+    select = best_views is not None and len(sources) > best_views
+    if select:  # every source's cost is kept until the best-matching ones are known
+        cost = torch.ones(len(sources), d, h, w, dtype=dtype, device=device)  # [S,D,H,W]
+        valid_all = torch.zeros(len(sources), d, h, w, dtype=torch.bool, device=device)
+    else:  # summed as the chunks come: memory stays a chunk's, whatever D and the views
+        cost_sum = torch.zeros(d, h, w, dtype=dtype, device=device)
+        n_valid = torch.zeros(d, h, w, dtype=dtype, device=device)
     # A pixel's point at depth z is C + z·ray (ray = its unprojection at z = 1 minus the
     # centre C), so in a source camera it is a + z·b with a = R_s·C + t_s and b = R_s·ray:
     # per candidate one multiply-add per coordinate, no matrix product (float64 once, here).
-    centre = cam.unproject(uv[:1, :1], torch.zeros(1, 1, dtype=torch.float64, device=device))
+    centre = cam.center.to(device=device, dtype=torch.float64)  # [3]
     ray = cam.unproject(uv, torch.ones(h, w, dtype=torch.float64, device=device)) - centre
     along = []  # per source: a [3], b [H,W,3], fx, skew, cx, fy, cy
     for s in sources:
         src = cameras[s]
         R, t = src.R.to(ray), src.t.to(ray)
-        a = (R @ centre.reshape(3) + t).to(dtype)
+        a = (R @ centre + t).to(dtype)
         b = (ray @ R.T).to(dtype)
         K = src.K.to(torch.float64)
         along.append((a, b, *(float(K[i, j]) for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2)))))
@@ -168,16 +173,18 @@ def _sweep_cost(
             cov = _box((warped * img).sum(1, keepdim=True))[:, 0] - (mu_s * mu_r).sum(1)
             zncc = cov / torch.sqrt(var_r.clamp_min(0) * var_s.clamp_min(0) + ZNCC_EPS)
             c = 1 - zncc.clamp(-1, 1) + COLOR_WEIGHT * (mu_s - mu_r).abs().mean(1)
-            cost[n, k0 : k0 + chunk] = c
-            valid_all[n, k0 : k0 + chunk] = valid
-    use = valid_all  # [S,D,H,W] which views' costs are averaged
-    if best_views is not None and len(sources) > best_views:
+            if select:
+                cost[n, k0 : k0 + chunk] = c
+                valid_all[n, k0 : k0 + chunk] = valid
+            else:
+                cost_sum[k0 : k0 + chunk] += c * valid
+                n_valid[k0 : k0 + chunk] += valid.to(dtype)
+    if select:
         best = torch.where(valid_all, cost, torch.full_like(cost, math.inf)).amin(1)  # [S,H,W]
         rank = best.argsort(0).argsort(0)  # [S,H,W] 0 = the view that matches best
-        use = valid_all & (rank < best_views)[:, None]
-    n_use = use.sum(0)  # [D,H,W]
-    total = (cost * use).sum(0)
-    return torch.where(n_use > 0, total / n_use.clamp_min(1), torch.ones_like(total))
+        use = valid_all & (rank < best_views)[:, None]  # [S,D,H,W] the costs averaged
+        cost_sum, n_valid = (cost * use).sum(0), use.sum(0).to(dtype)
+    return torch.where(n_valid > 0, cost_sum / n_valid.clamp_min(1), torch.ones_like(cost_sum))
 
 
 def winner_take_all(cost: Tensor) -> tuple[Tensor, Tensor]:
