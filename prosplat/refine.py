@@ -513,9 +513,7 @@ def refine(
         g = params.gaussians()
         if options.cull:  # only what can touch view i: the same image, less projection work
             sub = may_touch(params, cameras[i])
-            out = render(
-                Gaussians(*(t[sub] for t in g.tensors().values())), cameras[i], bg, backend
-            )
+            out = render(g[sub], cameras[i], bg, backend)
         else:
             out = render(g, cameras[i], bg, backend)
         photo = photometric_loss(out.rgb, images[i], options.ssim_weight)
@@ -527,8 +525,7 @@ def refine(
                 rel = (out.depth[valid] - ref[valid]).abs() / ref[valid]
                 loss = loss + options.depth_weight * rel.mean()
         if others and len(others[i]):
-            cross = render(Gaussians(*(t[others[i]] for t in g.tensors().values())), cameras[i],
-                           bg, backend)  # fmt: skip
+            cross = render(g[others[i]], cameras[i], bg, backend)
             covered = cross.alpha.detach() > 0.5  # [H,W]
             if bool(covered.any()):
                 a = cross.alpha.clamp_min(0.5)[None]  # [1,H,W]
