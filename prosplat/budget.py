@@ -53,6 +53,26 @@ __all__ = ["prune_gaussians", "prune_pixel_aligned", "importance"]
 _RANGE_SLACK = 1e-3  # relative: a Gaussian exactly at near/far is never dropped by rounding
 
 
+def check_view_index(view_index, n: int, n_views: int, what: str = "") -> None:
+    """``view_index`` must be an integer [N] tensor of values in [0, ``n_views``): the input
+    view that predicted each of N Gaussians. ``what`` prefixes the messages (the caller)."""
+    if not isinstance(view_index, Tensor) or tuple(view_index.shape) != (n,):
+        shape = (
+            list(view_index.shape) if isinstance(view_index, Tensor) else type(view_index).__name__
+        )
+        raise ValueError(
+            f"{what}view_index must be an integer [N={n}] tensor (the input view of each "
+            f"Gaussian), got {shape}"
+        )
+    if view_index.is_floating_point() or view_index.dtype == torch.bool or view_index.is_complex():
+        raise ValueError(f"{what}view_index must be an integer tensor, got {view_index.dtype}")
+    if n and (view_index.min() < 0 or view_index.max() >= n_views):
+        raise ValueError(
+            f"{what}view_index values must lie in [0, {n_views}) (one per input view), "
+            f"got [{int(view_index.min())}, {int(view_index.max())}]"
+        )
+
+
 def _check(
     gaussians: Gaussians,
     view_index: Tensor,
@@ -72,20 +92,7 @@ def _check(
         raise ValueError("cameras must be a list of prosplat.Camera")
     if len(cameras) == 0:
         raise ValueError("cameras must hold at least one Camera (one per input view)")
-    if not isinstance(view_index, Tensor) or tuple(view_index.shape) != (n,):
-        shape = (
-            list(view_index.shape) if isinstance(view_index, Tensor) else type(view_index).__name__
-        )
-        raise ValueError(
-            f"view_index must be a [N={n}] tensor (the input view of each Gaussian), got {shape}"
-        )
-    if view_index.is_floating_point() or view_index.dtype == torch.bool or view_index.is_complex():
-        raise ValueError(f"view_index must be an integer tensor, got {view_index.dtype}")
-    if n and (view_index.min() < 0 or view_index.max() >= len(cameras)):
-        raise ValueError(
-            f"view_index values must lie in [0, {len(cameras)}) (one per camera), "
-            f"got [{int(view_index.min())}, {int(view_index.max())}]"
-        )
+    check_view_index(view_index, n, len(cameras))
     if not isinstance(depths, Tensor) or depths.ndim != 3 or depths.shape[0] != len(cameras):
         shape = list(depths.shape) if isinstance(depths, Tensor) else type(depths).__name__
         raise ValueError(

@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from prosplat.budget import check_view_index
 from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 from prosplat.metrics.image import SSIM_WINDOW, ssim_map
@@ -373,24 +374,6 @@ def _check_budget(steps, seconds) -> None:
         raise ValueError(f"refine: seconds must be a finite number > 0, got {seconds!r}")
 
 
-def _check_view_index(view_index: Tensor | None, n: int, v: int) -> None:
-    if view_index is None:
-        return
-    if (
-        not isinstance(view_index, Tensor)
-        or tuple(view_index.shape) != (n,)
-        or view_index.is_floating_point()
-        or view_index.dtype == torch.bool
-    ):
-        shape = list(view_index.shape) if isinstance(view_index, Tensor) else type(view_index)
-        raise ValueError(
-            f"refine: view_index must be an integer [N={n}] tensor (the input view that "
-            f"predicted each Gaussian), got {shape}"
-        )
-    if n and (int(view_index.min()) < 0 or int(view_index.max()) >= v):
-        raise ValueError(f"refine: view_index values must lie in [0, {v}) (one per input view)")
-
-
 def _check_depths(depths: Tensor | None, images: Tensor) -> None:
     if depths is None:
         return
@@ -455,7 +438,8 @@ def refine(
     _check_budget(steps, seconds)
     check_images(images, cameras)
     _check_depths(depths, images)
-    _check_view_index(view_index, len(gaussians), len(cameras))
+    if view_index is not None:
+        check_view_index(view_index, len(gaussians), len(cameras), "refine: ")
     options.check()
     for name, fn in (("progress", progress), ("cancel", cancel)):
         if fn is not None and not callable(fn):
