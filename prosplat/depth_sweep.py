@@ -6,7 +6,7 @@ opposite profile: precise where a window matches uniquely, lost where it does no
 sweep over near-far finds the wrong peak on repeated or flat texture). Searching only a
 narrow band around the generator's depth takes both: for every input pixel, ``candidates``
 depths from ``depth·e^-span`` to ``depth·e^+span`` are scored by ZNCC against the other input
-views (:func:`prosplat.baselines.plane_sweep._sweep_cost`, the plane-sweep baseline's cost,
+views (:func:`prosplat.baselines.plane_sweep.zncc_cost`, the plane-sweep baseline's cost,
 averaged over the source views that match best so that an occluded view does not vote), and
 the winner replaces the generator's depth where its match is unique enough
 (``min_confidence``) and not at the edge of the band (a peak at the edge means the truth lies
@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.baselines.plane_sweep import _sweep_cost, winner_take_all
+from prosplat.baselines.plane_sweep import winner_take_all, zncc_cost
 from prosplat.camera import Camera
 from prosplat.generator.output import GeneratorOutput
 
@@ -162,7 +162,7 @@ def _corrections(
     for i in range(v):
         base = depths[i].to(torch.float64).clamp_min(1e-6)  # [H,W]
         cand = base[None] * factors[:, None, None]  # [K,H,W]
-        cost = _sweep_cost(images, cameras, i, cand, best_views=best_views)  # [K,H,W]
+        cost = zncc_cost(images, cameras, i, cand, best_views=best_views)  # [K,H,W]
         pos, conf = winner_take_all(cost)  # [H,W] fractional index, confidence
         inside = (pos > 0.5) & (pos < k - 1.5)  # not at the band's edge
         take = inside & (conf > options.min_confidence) & (depths[i] > 0)

@@ -38,7 +38,13 @@ from prosplat.convert.colmap import rotmat_to_qvec
 from prosplat.gaussians import Gaussians, rgb_to_sh0
 from prosplat.rotations import quat_multiply
 
-__all__ = ["plane_sweep_depths", "plane_sweep_gaussians", "gaussians_from_depths"]
+__all__ = [
+    "gaussians_from_depths",
+    "plane_sweep_depths",
+    "plane_sweep_gaussians",
+    "winner_take_all",
+    "zncc_cost",
+]
 
 LATERAL_SCALE = 0.7  # σ across the ray, in pixel footprints (depth / fx)
 RAY_SCALE = 0.1  # σ along the ray, in pixel footprints
@@ -100,7 +106,7 @@ def _box(x: Tensor) -> Tensor:
     return y / count
 
 
-def _sweep_cost(
+def zncc_cost(
     images: Tensor,
     cameras: list[Camera],
     ref: int,
@@ -240,7 +246,7 @@ def plane_sweep_depths(
     depths_c = _depth_candidates(near, far, int(n_depths), images.dtype, images.device)
     out_d, out_c = [], []
     for ref in range(images.shape[0]):
-        cost = _sweep_cost(images, cameras, ref, depths_c)
+        cost = zncc_cost(images, cameras, ref, depths_c)
         depth, conf = _winner_take_all(cost, near, far)
         out_d.append(depth)
         out_c.append(conf)
