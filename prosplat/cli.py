@@ -226,14 +226,16 @@ def cmd_scenes_pack(args: argparse.Namespace) -> int:
         print(f"prosplat scenes pack: no scene folders under {args.data}", file=sys.stderr)
         return 2
     # estimate the scenes per pack from the first one, then fill each pack up to the bound
-    probe = pack_scenes(folders[:1], args.out.with_name(f".{args.out.name}.probe.npz"), True)
+    depth = not args.no_depth
+    probe_path = args.out.with_name(f".{args.out.name}.probe.npz")
+    probe = pack_scenes(folders[:1], probe_path, True, depth=depth)
     per_scene = probe.stat().st_size
     probe.unlink()
     per_pack = max(1, int(args.max_mb * 2**20 * 0.9 // per_scene))
     chunks = [folders[i : i + per_pack] for i in range(0, len(folders), per_pack)]
     for i, chunk in enumerate(tqdm(chunks, desc="packing", unit="pack")):
         path = args.out.with_name(f"{args.out.name}_{i:03d}.npz")
-        pack_scenes(chunk, path)
+        pack_scenes(chunk, path, depth=depth)
         print(f"{path}: {len(chunk)} scenes, {path.stat().st_size / 2**20:.1f} MB")
     return 0
 
@@ -480,6 +482,12 @@ def build_parser() -> argparse.ArgumentParser:
     pk.add_argument("--max-mb", type=float, default=48.0, help="size bound per pack (default 48)")
     pk.add_argument("--first", type=int, default=0, help="skip the first N scenes (sorted)")
     pk.add_argument("--count", type=int, default=None, help="pack at most N scenes")
+    pk.add_argument(
+        "--no-depth",
+        action="store_true",
+        help="leave the depth maps out (about 5x smaller; enough for `prosplat train curate`, "
+        "not for training the generator with depth terms)",
+    )
     pk.set_defaults(func=cmd_scenes_pack)
 
     train = sub.add_parser("train", help="train models on rendered scenes")

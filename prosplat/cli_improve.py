@@ -50,7 +50,7 @@ def cmd_curate(args: argparse.Namespace) -> int:
     path = curate(
         model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd,
         refine_steps=args.refine_steps, height=args.size, generator_height=args.generator_size,
-        splat_scale=args.splat_scale,
+        splat_scale=args.splat_scale, first=args.first, count=args.count,
     )  # fmt: skip
     print(f"curated set: {path.resolve()}")
     return 0
@@ -138,7 +138,12 @@ def add_train_parsers(train_sub) -> None:
         "the MORI reference (paper score and geometric overlap) with its fundamental "
         "matrix, and the ground truth in one safetensors file (a cache: not committed).",
     )
-    cu.add_argument("--data", required=True, help="dataset folder of rendered scenes")
+    cu.add_argument(
+        "--data",
+        required=True,
+        help="dataset folder of rendered scenes, or scene packs (.npz, `prosplat scenes pack`, "
+        "depth not needed), comma-separated",
+    )
     cu.add_argument("--out", required=True, help="curated file to write (.safetensors)")
     cu.add_argument("--generator", default=None,
                     help="generator checkpoint (default: shipped); a DepthSplat .pth (released or "
@@ -174,6 +179,14 @@ def add_train_parsers(train_sub) -> None:
         help="run the generator at most this high and render at the views' size (default: "
         "the weights' trained size, 64 for the shipped ones, as the pipeline runs it; 0: the "
         "views' size)",
+    )
+    cu.add_argument("--first", type=int, default=0, help="skip the first N scenes (sorted)")
+    cu.add_argument(
+        "--count",
+        type=int,
+        default=None,
+        help="curate at most N scenes: processes sharing a set each take a slice, and "
+        "`train improve --data a,b,...` takes the files together",
     )
     cu.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     cu.set_defaults(func=cmd_curate)

@@ -45,6 +45,31 @@ def test_a_pack_holds_the_scenes_it_was_made_from(scenes, pack):
         assert torch.equal(a.near, b.near) and torch.equal(a.far, b.far)
 
 
+def test_a_pack_without_depth_is_smaller_and_reads_the_same_images(scenes, pack, tmp_path):
+    folders = sorted(scenes.iterdir())
+    bare = Pack(pack_scenes(folders, tmp_path / "bare.npz", depth=False))
+    full = Pack(pack)
+    assert bare.path.stat().st_size < 0.8 * full.path.stat().st_size  # depth is most bytes
+    assert full.has_depth and not bare.has_depth
+    for i in range(len(full)):
+        a, b = full.scene(i), bare.scene(i)
+        assert b.depths is None and a.depths is not None
+        assert torch.equal(a.images, b.images)  # the same JPEG bytes
+        assert b.splits == a.splits and torch.equal(a.near, b.near)
+    item = SceneDataset(bare.path, n_inputs=2, n_targets=2, seed=3)[ItemKey(1, 0, 2)]
+    assert "input_depths" not in item and "target_depths" not in item
+
+
+def test_training_with_depth_terms_refuses_a_pack_without_depth(scenes, tmp_path):
+    from prosplat.train.generator import train
+
+    bare = pack_scenes(sorted(scenes.iterdir()), tmp_path / "bare.npz", depth=False)
+    cfg = TrainConfig(data=str(bare), out=str(tmp_path / "run"), steps=1, inputs=2,
+                      input_depth_weight=1.0, lpips_weight=0.0)  # fmt: skip
+    with pytest.raises(ValueError, match="--input-depth-weight need it"):
+        train(cfg, progress=False)
+
+
 def test_a_pack_is_never_replaced_and_must_be_npz(scenes, pack):
     with pytest.raises(FileExistsError, match="exists"):
         pack_scenes([scenes / "scene_0"], pack)
@@ -186,6 +211,11 @@ def test_the_pack_command_splits_and_never_overwrites(scenes, tmp_path, capsys):
     assert sum(len(Pack(p)) for p in packs) == 3
     with pytest.raises(FileExistsError):
         main(args)
+    with pytest.raises(SystemExit) as done:
+        main([*args[:-2], "--max-mb", "1", "--no-depth", "--out", str(tmp_path / "bare")])
+    assert done.value.code == 0
+    (bare,) = tmp_path.glob("bare_*.npz")
+    assert not Pack(bare).has_depth and len(Pack(bare)) == 3
 
 
 def test_a_crop_keeps_every_pixel_on_its_ray():

@@ -10,7 +10,7 @@ from improve_configs import SMALL
 from synthetic_scenes import write_synthetic_scene
 
 from prosplat import ProSplat
-from prosplat.checkpoints import write_checkpoint
+from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.generator import GeneratorConfig
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel
@@ -265,6 +265,41 @@ def test_train_improve_on_a_local_sd_turbo_saves_merged_lora(setup, tmp_path) ->
     with pytest.raises(ValueError, match="--pretrained"):
         train_improve(ImproveTrainConfig(**{**cfg.__dict__, "init": str(path),
                                             "out": str(tmp_path / "x")}), progress=False)  # fmt: skip
+
+
+def test_curation_from_a_pack_in_slices_matches_the_folders(setup, tmp_path) -> None:
+    """Processes sharing a set each curate a slice of a depth-free pack (what a lent GPU
+    machine does, scripts/gpu_train_stage2.sh); together they hold every folder's samples."""
+    from prosplat.data.packed import pack_scenes
+    from prosplat.metrics import psnr
+
+    root, gen_path, curated = setup
+    whole = load_curated(curated)
+    pack = pack_scenes(sorted((root / "scenes").iterdir()), tmp_path / "s.npz", depth=False)
+    gen = ProSplat.from_pretrained(gen_path, improve=False)
+    parts = [
+        curate(
+            gen,
+            pack,
+            tmp_path / f"part{k}.safetensors",
+            views=(2, 3),
+            progress=False,
+            first=k,
+            count=1,
+        )  # fmt: skip
+        for k in range(2)
+    ]
+    names = [json.loads(read_checkpoint(p, "curated set")[1]["scenes"]) for p in parts]
+    assert names == [["scene_0"], ["scene_1"]]
+    render = torch.cat([load_curated(p)["render"] for p in parts]).float()
+    target = torch.cat([load_curated(p)["target"] for p in parts]).float()
+    assert render.shape == whole["render"].shape
+    assert float(psnr(target, whole["target"].float()).min()) > 35  # JPEG q95, same views
+    assert float(psnr(render, whole["render"].float()).mean()) > 25  # the same scenes
+    with pytest.raises(ValueError, match="no scenes left"):
+        curate(gen, pack, tmp_path / "none.safetensors", progress=False, first=2)
+    with pytest.raises(ValueError, match="count"):
+        curate(gen, f"{pack},{root / 'scenes'}", tmp_path / "x.safetensors", count=0)
 
 
 def test_curation_stores_alpha_and_resizes(setup, tmp_path) -> None:

@@ -35,7 +35,8 @@ def _hflip(width: int) -> Tensor:
 
 def transform_fundamental(F: Tensor, T: Tensor, T_ref: Tensor) -> Tensor:
     """F [3,3] between render and reference after the pixel maps T (render) and T_ref."""
-    Fd = F.double()
+    Fd = F.double()  # the pixel maps are built on the CPU; F may live on a GPU
+    T, T_ref = T.to(Fd.device), T_ref.to(Fd.device)
     return (torch.linalg.inv(T_ref).T @ Fd @ torch.linalg.inv(T)).to(F.dtype)
 
 

@@ -10,8 +10,9 @@ writes one safetensors file), never committed.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -19,7 +20,7 @@ from torch import Tensor
 
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import find_scenes
-from prosplat.data.scene import load_scene, resize_views
+from prosplat.data.scene import SceneData, load_scene, resize_views
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
@@ -119,33 +120,47 @@ def curate(
     height: int | None = None,
     generator_height: int | None = None,
     splat_scale: float = 1.0,
+    first: int = 0,
+    count: int | None = None,
 ) -> Path:
     """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
     ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`); ``height``:
     views resized to this height first (antialiased, as the ladder evaluates), so one set of
     128-px scenes serves a 64-px model; ``generator_height`` and ``splat_scale``: see
-    :func:`curate_scene`."""
+    :func:`curate_scene`.
+
+    ``root``: a dataset folder, a scene pack (``.npz``, ``prosplat scenes pack``; depth is not
+    needed) or several of them, comma-separated. ``first`` / ``count`` curate a slice of the
+    scenes (sorted as listed), so several processes can share one set's scenes: the training
+    loop takes the slices' files together (``--data a,b,...``)."""
     if int(refine_steps) != refine_steps or refine_steps < 0:
         raise ValueError(f"refine_steps must be an integer >= 0 (0: off), got {refine_steps}")
+    if first < 0 or (count is not None and count < 1):
+        raise ValueError(f"first must be >= 0 and count >= 1, got first={first}, count={count}")
     from tqdm import tqdm
 
-    folders = find_scenes(root)
-    if not folders:
-        raise FileNotFoundError(f"no scenes (folders with transforms.json) under {root}")
+    sources = scene_sources(root)
+    if not sources:
+        raise FileNotFoundError(f"no scenes (folders with transforms.json, or packs) in {root}")
+    sources = sources[first : None if count is None else first + count]
+    if not sources:
+        raise ValueError(f"no scenes left after skipping the first {first} of {root}")
     out = Path(out)
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} exists; pass overwrite=True (--overwrite) to replace it")
     cols: dict[str, list[Tensor]] = {}
     size = None
-    for s, folder in enumerate(tqdm(folders, desc="curating", unit="scene", disable=not progress)):
-        scene = load_scene(folder, load_depth=False)
+    for s, (name, load) in enumerate(
+        tqdm(sources, desc="curating", unit="scene", disable=not progress)
+    ):
+        scene = load()
         if height is not None:
             images, cameras = resize_views(scene.images, scene.cameras, height)
             scene = replace(scene, images=images, cameras=cameras)
         hw = tuple(scene.images.shape[-2:])
         if size is not None and hw != size:
             raise ValueError(
-                f"{folder} is {hw[1]}x{hw[0]} but earlier scenes are {size[1]}x{size[0]}; curate "
+                f"{name} is {hw[1]}x{hw[0]} but earlier scenes are {size[1]}x{size[0]}; curate "
                 "one image size per file"
             )
         size = hw
@@ -163,7 +178,7 @@ def curate(
     tensors = {k: torch.stack(v) for k, v in cols.items()}
     meta = {
         "format": CURATED_FORMAT,
-        "scenes": json.dumps([f.name for f in folders]),
+        "scenes": json.dumps([name for name, _ in sources]),
         "views": json.dumps(list(views)),
         "refine_steps": str(int(refine_steps)),
         "height": str(height or ""),
@@ -174,6 +189,22 @@ def curate(
         "command": command,
     }
     return write_checkpoint(tensors, out, meta, overwrite)
+
+
+def scene_sources(root: str | Path) -> list[tuple[str, Callable[[], SceneData]]]:
+    """(name, loader) for each scene in ``root``: folders (a dataset folder or one scene) and
+    scene packs (``.npz``), comma-separated; loaders decode on demand (a pack's images are JPEG
+    bytes), without depth where the scene has a choice."""
+    from prosplat.data.packed import PACK_SUFFIX, Pack
+
+    out: list[tuple[str, Callable[[], SceneData]]] = []
+    for part in str(root).split(","):
+        if Path(part).suffix == PACK_SUFFIX:
+            pack = Pack(part)
+            out += [(n, partial(pack.scene, i)) for i, n in enumerate(pack.names())]
+        else:
+            out += [(f.name, partial(load_scene, f, load_depth=False)) for f in find_scenes(part)]
+    return out
 
 
 def load_curated(path: str | Path) -> CuratedSet:

@@ -55,6 +55,7 @@ import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
@@ -75,6 +76,9 @@ from prosplat.train.common import (
     truncate_log,
 )
 from prosplat.train.ema import WeightAverage
+
+if TYPE_CHECKING:
+    from prosplat.data import SceneDataset
 
 __all__ = [
     "TrainConfig",
@@ -427,6 +431,21 @@ def depth_error(pred: Tensor, gt: Tensor, kind: str) -> Tensor:
     return (1 / pred - 1 / gt).abs().mean()
 
 
+def _check_packs_have_depth(ds: SceneDataset, cfg: TrainConfig) -> None:
+    """A pack made with ``scenes pack --no-depth`` would silently drop the depth terms: refuse
+    it when they are asked for (folders without depth are the scene's own matter)."""
+    wanted = [n for n in ("depth_weight", "input_depth_weight") if getattr(cfg, n) > 0]
+    if not wanted:
+        return
+    for pack in {s[0] for s in ds.folders if isinstance(s, tuple)}:
+        if not pack.has_depth:
+            raise ValueError(
+                f"{pack.path} was packed without depth (`scenes pack --no-depth`), but "
+                f"{', '.join('--' + n.replace('_', '-') for n in wanted)} need it: pack the "
+                "scenes again without --no-depth"
+            )
+
+
 def lr_at(step: int, cfg) -> float:
     """Linear warm-up, then cosine decay to 10 % of the peak; ``cfg`` is any training config
     with ``lr``, ``warmup`` and ``steps`` (the generator's and the stage-2 ones)."""
@@ -693,6 +712,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         cache_size=cfg.cache_scenes,
     )
     steps_per_epoch(len(ds), cfg.batch, dist.world_size)  # a clear error if a step cannot fill
+    _check_packs_have_depth(ds, cfg)
     val_ds = None
     if cfg.val and dist.is_main:
         val_ds = SceneDataset(cfg.val, n_inputs=counts[0], n_targets=cfg.targets, seed=12345)

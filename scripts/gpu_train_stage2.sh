@@ -1,0 +1,94 @@
+#!/usr/bin/env bash
+# Stage 2 on a lent GPU machine in one bounded call: curate on its CPU cores, train on its GPU.
+#
+# A curated set is ~20 MB a scene-set of float16 images, far more than one call may carry (64
+# MiB with the working tree), so the call carries the scenes instead, as a depth-free pack
+# (`prosplat scenes pack --no-depth`, ~0.17 MB a scene), and curates them there: SHARDS
+# processes of one thread per set (`train curate --first/--count`), raw64 (2/3/4/6 inputs) and
+# raw128 (2/4) as scripts/curate_stage2_sets.sh makes them, with the shipped generator and its
+# depth sweep. Then `prosplat train improve --device cuda` from the shipped stage 2 with the
+# options given, for as many steps as the time left allows: a short probe run measures the
+# step time first, so the cosine schedule ends where the budget does.
+#
+# What the call carries (ignored folders, named in the call's carry):
+#   .whl/  wheels the machine lacks: diffusers, importlib_metadata, plyfile (py3-none-any)
+#   .gpu/  the scene pack(s) *.npz and lpips_alex_v0.1.f16.safetensors (LPIPS weights in
+#          float16, 5 MB instead of 10, widened back to float32 there)
+# What comes back in $OUT: improve.safetensors, log.jsonl, the curation and training logs.
+# Usage (repository root, on the GPU machine):
+#   scripts/gpu_train_stage2.sh SECONDS [prosplat train improve options ...]
+# Dry run elsewhere: PY=.venv/bin/python DEVICE=cpu PACKS=a.npz SHARDS=2 MIN_STEPS=2 OUT=/tmp/o
+set -uo pipefail
+budget=${1:?usage: gpu_train_stage2.sh SECONDS [train improve options ...]}
+shift
+t0=$(date +%s)
+left() { echo $((budget - ($(date +%s) - t0))); }
+OUT=${OUT:-/tmp/out}
+PY=${PY:-python3}
+DEVICE=${DEVICE:-cuda}
+rm -rf /tmp/s2_probe
+mkdir -p "$OUT" /tmp/cache /tmp/s2_sets /tmp/s2_logs
+$PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target /tmp/site .whl/*.whl || exit 1
+export PYTHONPATH=/tmp/site:$PWD PROSPLAT_CACHE=/tmp/cache PYTHONUNBUFFERED=1
+$PY - <<'EOF' || exit 1
+import glob, os
+from safetensors import safe_open
+from safetensors.torch import load_file, save_file
+for src in glob.glob(".gpu/lpips_*.f16.safetensors"):
+    dst = os.path.join("/tmp/cache", os.path.basename(src).replace(".f16", ""))
+    with safe_open(src, "pt") as f:
+        meta = f.metadata()
+    save_file({k: v.float() for k, v in load_file(src).items()}, dst, metadata=meta)
+from prosplat.render.native import load  # build the rasterizer once, not per shard
+load()
+import torch
+gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else "no GPU"
+print("torch", torch.__version__, gpu, "cores", os.cpu_count())
+EOF
+packs=$(ls ${PACKS:-.gpu/*.npz} | paste -sd, -)
+n=$($PY -c "from prosplat.train.curate import scene_sources as s; print(len(s('$packs')))")
+shards=${SHARDS:-8}
+per=$(((n + shards - 1) / shards))
+echo "setup $(($(date +%s) - t0)) s; $n scenes in $packs, $shards shards of $per per set"
+for k in $(seq 0 $((shards - 1))); do
+  for spec in "raw64 2,3,4,6 64" "raw128 2,4 128"; do
+    read -r name views size <<< "$spec"
+    [ -f "/tmp/s2_sets/${name}_$k.safetensors" ] && continue  # a warm machine's earlier call
+    OMP_NUM_THREADS=1 $PY -m prosplat train curate --data "$packs" --views "$views" \
+      --size "$size" --generator-size 128 --first $((k * per)) --count "$per" \
+      --out "/tmp/s2_sets/${name}_$k.safetensors" > "/tmp/s2_logs/curate_${name}_$k.log" 2>&1 &
+  done
+done
+wait
+sets=$(ls /tmp/s2_sets/raw*.safetensors | paste -sd, -)
+echo "curated $(ls /tmp/s2_sets | wc -l) files by $(($(date +%s) - t0)) s"
+tail -c 300 /tmp/s2_logs/curate_raw128_0.log
+failed=$(grep -L "curated set" /tmp/s2_logs/curate_*.log)
+[ -z "$failed" ] || echo "failed curations: $failed"
+
+init=prosplat/weights/improve_tiny.safetensors
+# the probe: 60 steps with the same options, timed between steps 20 and 60
+$PY -m prosplat train improve --device "$DEVICE" --data "$sets" --out /tmp/s2_probe --init "$init" \
+  --steps 60 --log-every 20 --save-every 60 "$@" > /tmp/s2_logs/probe.log 2>&1
+rate=$($PY - <<'EOF'
+import json
+recs = [json.loads(line) for line in open("/tmp/s2_probe/log.jsonl") if '"seconds"' in line]
+(a, b) = (recs[0], recs[-1])
+print((b["seconds"] - a["seconds"]) / (b["step"] - a["step"]))
+EOF
+)
+[ -n "$rate" ] || { tail -c 2000 /tmp/s2_logs/probe.log; exit 1; }
+steps=$($PY -c "print(max(${MIN_STEPS:-100}, int(0.8 * ($(left) - 45) / $rate) // 100 * 100))")
+echo "probe: $rate s/step; training $steps steps with $(left) s left"
+limit=$(($(left) - 20))
+[ "$limit" -gt 60 ] || limit=60
+timeout --signal=INT "$limit" $PY -m prosplat train improve --device "$DEVICE" \
+  --data "$sets" --out /tmp/s2_run --init "$init" --steps "$steps" --save-every 500 --log-every 50 "$@" \
+  > /tmp/s2_logs/train.log 2>&1
+echo "training exit $? at $(($(date +%s) - t0)) s"
+grep -v "it/s\]" /tmp/s2_logs/train.log | tail -5
+tail -3 /tmp/s2_run/log.jsonl
+cp /tmp/s2_run/improve.safetensors /tmp/s2_run/log.jsonl "$OUT/" 2>/dev/null
+tar czf "$OUT/logs.tgz" -C /tmp s2_logs
+ls -la "$OUT"
