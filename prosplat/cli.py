@@ -485,7 +485,7 @@ def build_parser() -> argparse.ArgumentParser:
     pk.add_argument(
         "--no-depth",
         action="store_true",
-        help="leave the depth maps out (about 5x smaller; enough for `prosplat train curate`, "
+        help="leave the depth maps out (about 40 %% smaller; enough for `prosplat train curate`, "
         "not for training the generator with depth terms)",
     )
     pk.set_defaults(func=cmd_scenes_pack)
