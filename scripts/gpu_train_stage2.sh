@@ -14,6 +14,7 @@
 #   .whl/  wheels the machine lacks: diffusers, importlib_metadata, plyfile (py3-none-any)
 #   .gpu/  the scene pack(s) *.npz and lpips_alex_v0.1.f16.safetensors (LPIPS weights in
 #          float16, 5 MB instead of 10, widened back to float32 there)
+# INIT= another stage 2 to start from (default: the shipped one; a file that travels too).
 # What comes back in $OUT: improve.safetensors, log.jsonl, the curation and training logs.
 # Usage (repository root, on the GPU machine):
 #   scripts/gpu_train_stage2.sh SECONDS [prosplat train improve options ...]
@@ -67,7 +68,7 @@ tail -c 300 /tmp/s2_logs/curate_raw128_0.log
 failed=$(grep -L "curated set" /tmp/s2_logs/curate_*.log)
 [ -z "$failed" ] || echo "failed curations: $failed"
 
-init=prosplat/weights/improve_tiny.safetensors
+init=${INIT:-prosplat/weights/improve_tiny.safetensors}  # the stage 2 to start from
 # the probe: 60 steps with the same options, timed between steps 20 and 60
 $PY -m prosplat train improve --device "$DEVICE" --data "$sets" --out /tmp/s2_probe --init "$init" \
   --steps 60 --log-every 20 --save-every 60 "$@" > /tmp/s2_logs/probe.log 2>&1
