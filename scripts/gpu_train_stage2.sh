@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Stage 2 on a lent GPU machine in one bounded call: curate on its CPU cores, train on its GPU.
 #
-# The curated sets hold about 20 MB of float16 images per scene, far more than one call may carry (64
-# MiB with the working tree), so the call carries the scenes instead, as a depth-free pack
+# The curated sets hold about 20 MB of float16 images per scene, far more than one call may
+# carry (64 MiB with the working tree), so the call carries the scenes instead, as a depth-free pack
 # (`prosplat scenes pack --no-depth`, ~0.15-0.17 MB a scene), and curates them there: SHARDS
 # processes of one thread per set (`train curate --first/--count`), raw64 (2/3/4/6 inputs) and
 # raw128 (2/4) as scripts/curate_stage2_sets.sh makes them, with the shipped generator and its
