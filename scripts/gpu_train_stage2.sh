@@ -15,7 +15,8 @@
 #   .gpu/  the scene pack(s) *.npz and lpips_alex_v0.1.f16.safetensors (LPIPS weights in
 #          float16, 5 MB instead of 10, widened back to float32 there)
 # INIT= another stage 2 to start from (default: the shipped one; a file that travels too).
-# What comes back in $OUT: improve.safetensors, log.jsonl, the curation and training logs.
+# What comes back in $OUT: improve.safetensors, log.jsonl, the curation and training logs (a
+# training run stopped by the time limit still saves improve.safetensors at the step reached).
 # Usage (repository root, on the GPU machine):
 #   scripts/gpu_train_stage2.sh SECONDS [prosplat train improve options ...]
 # Dry run elsewhere: PY=.venv/bin/python DEVICE=cpu PACKS=a.npz SHARDS=2 MIN_STEPS=2 OUT=/tmp/o

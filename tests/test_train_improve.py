@@ -154,6 +154,32 @@ def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:
     assert [r["step"] for r in log][-2:] == [5, 6]
 
 
+def test_an_interrupted_run_saves_its_weights_and_resumes(setup, tmp_path, monkeypatch) -> None:
+    """Ctrl-C (or `timeout --signal=INT` on a time-boxed GPU machine) keeps what was trained:
+    improve.safetensors at the step reached, and a checkpoint the same command resumes from."""
+    import prosplat.train.improve as improve_mod
+
+    _, _, curated = setup
+    cfg = ImproveTrainConfig(data=str(curated), out=str(tmp_path / "run"), steps=5, batch=2,
+                             save_every=100, log_every=1, lpips_weight=0.0, device="cpu")  # fmt: skip
+    real, calls = improve_mod.enhance_loss, []
+
+    def stop_at_third_step(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(improve_mod, "enhance_loss", stop_at_third_step)
+    path = train_improve(cfg, progress=False, model_config=SMALL)
+    assert read_checkpoint(path, "stage 2")[1]["steps"] == "2"
+    monkeypatch.setattr(improve_mod, "enhance_loss", real)
+    train_improve(cfg, progress=False, model_config=SMALL)  # resumes at step 2, not from 0
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2, 3, 4, 5]
+    assert read_checkpoint(path, "stage 2")[1]["steps"] == "5"
+
+
 def test_training_lowers_the_loss(setup, tmp_path) -> None:
     _, _, curated = setup
     data = load_curated(curated)

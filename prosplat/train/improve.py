@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -194,9 +195,12 @@ class _Run:
                 rec["seconds"] = round(time.perf_counter() - self.t0, 1)
                 self.log.write(json.dumps(rec) + "\n")
                 self.log.flush()
-        if self.dist.is_main and (
-            self.step % self.cfg.save_every == 0 or self.step == self.cfg.steps
-        ):
+        if self.step % self.cfg.save_every == 0 or self.step == self.cfg.steps:
+            self.save()
+
+    def save(self) -> None:
+        """Checkpoint the weights and optimiser at the current step (the main process)."""
+        if self.dist.is_main:
             save_checkpoint(
                 self.out, self.step, self.weights_fn(), {"optimizer": self.opt.state_dict()}
             )
@@ -344,6 +348,7 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         model.load_state_dict(run.resumed.weights)
     net = dist.wrap(model)
     lpips_fn = LPIPS().to(device) if cfg.lpips_weight > 0 else None
+    interrupted = False
     try:
         while run.step < cfg.steps:
             data = sets[run.step % len(sets)]  # one set per step: a batch has one view size
@@ -391,6 +396,9 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
             if val is not None and (run.step + 1) % cfg.val_every == 0:
                 extra = validate_improver(model, val, cfg.reference_method, device)
             run.advance(loss, params, parts, extra)
+    except KeyboardInterrupt:  # Ctrl-C, or `timeout --signal=INT` on a time-boxed machine
+        interrupted = True
+        run.save()  # the same command resumes from here
     finally:
         run.close()
     final = Path(cfg.out) / "improve.safetensors"
@@ -400,6 +408,12 @@ def _train_improve(cfg: ImproveTrainConfig, progress: bool, model_config, dist: 
         cmd = f"prosplat train improve {json.dumps(asdict(cfg))}"
         model = merge_lora(model.cpu())  # LoRA runs resume from their checkpoint, not this file
         save_improver(model, final, overwrite=True, command=cmd, steps=str(run.step))
+        if interrupted:
+            print(
+                f"train improve: interrupted at step {run.step} of {cfg.steps}; saved the "
+                f"weights so far to {final} and a checkpoint: the same command resumes",
+                file=sys.stderr,
+            )
     return final
 
 
