@@ -14,6 +14,8 @@
 #   .whl/  wheels the machine lacks: diffusers, importlib_metadata, plyfile (py3-none-any)
 #   .gpu/  the scene pack(s) *.npz and lpips_alex_v0.1.f16.safetensors (LPIPS weights in
 #          float16, 5 MB instead of 10, widened back to float32 there)
+# SETS="NAME:VIEWS:SIZE:REFINE_STEPS ..." the curated sets (default raw64:2,3,4,6:64:0
+#   raw128:2,4:128:0; e.g. add ref64:2,4:64:300 for renders refined as `prosplat.refine` does).
 # INIT= another stage 2 to start from (default: the shipped one; a file that travels too).
 # What comes back in $OUT: improve.safetensors, log.jsonl, the curation and training logs (a
 # training run stopped by the time limit still saves improve.safetensors at the step reached).
@@ -53,19 +55,22 @@ n=$($PY -c "from prosplat.train.curate import scene_sources as s; print(len(s('$
 shards=${SHARDS:-8}
 per=$(((n + shards - 1) / shards))
 echo "setup $(($(date +%s) - t0)) s; $n scenes in $packs, $shards shards of $per per set"
+# SETS: NAME:VIEWS:SIZE:REFINE_STEPS for each curated set (refined sets take ~10x longer)
+SETS=${SETS:-raw64:2,3,4,6:64:0 raw128:2,4:128:0}
 for k in $(seq 0 $((shards - 1))); do
-  for spec in "raw64 2,3,4,6 64" "raw128 2,4 128"; do
-    read -r name views size <<< "$spec"
+  for spec in $SETS; do
+    IFS=: read -r name views size refine <<< "$spec"
     [ -f "/tmp/s2_sets/${name}_$k.safetensors" ] && continue  # a warm machine's earlier call
     OMP_NUM_THREADS=1 $PY -m prosplat train curate --data "$packs" --views "$views" \
-      --size "$size" --generator-size 128 --first $((k * per)) --count "$per" \
-      --out "/tmp/s2_sets/${name}_$k.safetensors" > "/tmp/s2_logs/curate_${name}_$k.log" 2>&1 &
+      --size "$size" --generator-size 128 --refine-steps "$refine" --first $((k * per)) \
+      --count "$per" --out "/tmp/s2_sets/${name}_$k.safetensors" \
+      > "/tmp/s2_logs/curate_${name}_$k.log" 2>&1 &
   done
 done
 wait
-sets=$(ls /tmp/s2_sets/raw*.safetensors | paste -sd, -)
+sets=$(for spec in $SETS; do ls /tmp/s2_sets/"${spec%%:*}"_*.safetensors; done | paste -sd, -)
 echo "curated $(ls /tmp/s2_sets | wc -l) files by $(($(date +%s) - t0)) s"
-tail -c 300 /tmp/s2_logs/curate_raw128_0.log
+tail -c 300 "$(ls /tmp/s2_logs/curate_*.log | head -1)"
 failed=$(grep -L "curated set" /tmp/s2_logs/curate_*.log)
 [ -z "$failed" ] || echo "failed curations: $failed"
 
