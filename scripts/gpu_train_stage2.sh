@@ -22,25 +22,27 @@
 # Usage (repository root, on the GPU machine):
 #   scripts/gpu_train_stage2.sh SECONDS [prosplat train improve options ...]
 # Dry run elsewhere: PY=.venv/bin/python DEVICE=cpu PACKS=a.npz SHARDS=2 MIN_STEPS=2 OUT=/tmp/o
+# (WORK= another folder than /tmp for the sets, runs and logs).
 set -uo pipefail
 budget=${1:?usage: gpu_train_stage2.sh SECONDS [train improve options ...]}
 shift
 t0=$(date +%s)
 left() { echo $((budget - ($(date +%s) - t0))); }
 OUT=${OUT:-/tmp/out}
+W=${WORK:-/tmp}  # what a warm machine keeps between calls: curated sets, runs, logs
 PY=${PY:-python3}
 DEVICE=${DEVICE:-cuda}
-rm -rf /tmp/s2_probe
-mkdir -p "$OUT" /tmp/cache /tmp/s2_sets /tmp/s2_logs
+rm -rf "$W/s2_probe"
+mkdir -p "$OUT" "$W/cache" "$W/s2_sets" "$W/s2_logs"
 $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-  --target /tmp/site .whl/*.whl || exit 1
-export PYTHONPATH=/tmp/site:$PWD PROSPLAT_CACHE=/tmp/cache PYTHONUNBUFFERED=1
+  --target "$W/site" .whl/*.whl || exit 1
+export PYTHONPATH=$W/site:$PWD PROSPLAT_CACHE=$W/cache PYTHONUNBUFFERED=1
 $PY - <<'EOF' || exit 1
 import glob, os
 from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 for src in glob.glob(".gpu/lpips_*.f16.safetensors"):
-    dst = os.path.join("/tmp/cache", os.path.basename(src).replace(".f16", ""))
+    dst = os.path.join(os.environ["PROSPLAT_CACHE"], os.path.basename(src).replace(".f16", ""))
     with safe_open(src, "pt") as f:
         meta = f.metadata()
     save_file({k: v.float() for k, v in load_file(src).items()}, dst, metadata=meta)
@@ -60,42 +62,42 @@ SETS=${SETS:-raw64:2,3,4,6:64:0 raw128:2,4:128:0}
 for k in $(seq 0 $((shards - 1))); do
   for spec in $SETS; do
     IFS=: read -r name views size refine <<< "$spec"
-    [ -f "/tmp/s2_sets/${name}_$k.safetensors" ] && continue  # a warm machine's earlier call
+    [ -f "$W/s2_sets/${name}_$k.safetensors" ] && continue  # a warm machine's earlier call
     OMP_NUM_THREADS=1 $PY -m prosplat train curate --data "$packs" --views "$views" \
       --size "$size" --generator-size 128 --refine-steps "$refine" --first $((k * per)) \
-      --count "$per" --out "/tmp/s2_sets/${name}_$k.safetensors" \
-      > "/tmp/s2_logs/curate_${name}_$k.log" 2>&1 &
+      --count "$per" --out "$W/s2_sets/${name}_$k.safetensors" \
+      > "$W/s2_logs/curate_${name}_$k.log" 2>&1 &
   done
 done
 wait
-sets=$(for spec in $SETS; do ls /tmp/s2_sets/"${spec%%:*}"_*.safetensors; done | paste -sd, -)
-echo "curated $(ls /tmp/s2_sets | wc -l) files by $(($(date +%s) - t0)) s"
-tail -c 300 "$(ls /tmp/s2_logs/curate_*.log | head -1)"
-failed=$(grep -L "curated set" /tmp/s2_logs/curate_*.log)
+sets=$(for spec in $SETS; do ls "$W/s2_sets/${spec%%:*}"_*.safetensors; done | paste -sd, -)
+echo "curated $(ls "$W/s2_sets" | wc -l) files by $(($(date +%s) - t0)) s"
+tail -c 300 "$(ls "$W"/s2_logs/curate_*.log | head -1)"
+failed=$(grep -L "curated set" "$W"/s2_logs/curate_*.log)
 [ -z "$failed" ] || echo "failed curations: $failed"
 
 init=${INIT:-prosplat/weights/improve_tiny.safetensors}  # the stage 2 to start from
 # the probe: 60 steps with the same options, timed between steps 20 and 60
-$PY -m prosplat train improve --device "$DEVICE" --data "$sets" --out /tmp/s2_probe --init "$init" \
-  --steps 60 --log-every 20 --save-every 60 "$@" > /tmp/s2_logs/probe.log 2>&1
-rate=$($PY - <<'EOF'
-import json
-recs = [json.loads(line) for line in open("/tmp/s2_probe/log.jsonl") if '"seconds"' in line]
+$PY -m prosplat train improve --device "$DEVICE" --data "$sets" --out "$W/s2_probe" --init "$init" \
+  --steps 60 --log-every 20 --save-every 60 "$@" > "$W/s2_logs/probe.log" 2>&1
+rate=$($PY - "$W/s2_probe/log.jsonl" <<'EOF'
+import json, sys
+recs = [json.loads(line) for line in open(sys.argv[1]) if '"seconds"' in line]
 (a, b) = (recs[0], recs[-1])
 print((b["seconds"] - a["seconds"]) / (b["step"] - a["step"]))
 EOF
 )
-[ -n "$rate" ] || { tail -c 2000 /tmp/s2_logs/probe.log; exit 1; }
+[ -n "$rate" ] || { tail -c 2000 "$W/s2_logs/probe.log"; exit 1; }
 steps=$($PY -c "print(max(${MIN_STEPS:-100}, int(0.8 * ($(left) - 45) / $rate) // 100 * 100))")
 echo "probe: $rate s/step; training $steps steps with $(left) s left"
 limit=$(($(left) - 20))
 [ "$limit" -gt 60 ] || limit=60
 timeout --signal=INT "$limit" $PY -m prosplat train improve --device "$DEVICE" \
-  --data "$sets" --out /tmp/s2_run --init "$init" --steps "$steps" --save-every 500 --log-every 50 "$@" \
-  > /tmp/s2_logs/train.log 2>&1
+  --data "$sets" --out "$W/s2_run" --init "$init" --steps "$steps" --save-every 500 --log-every 50 "$@" \
+  > "$W/s2_logs/train.log" 2>&1
 echo "training exit $? at $(($(date +%s) - t0)) s"
-grep -v "it/s\]" /tmp/s2_logs/train.log | tail -5
-tail -3 /tmp/s2_run/log.jsonl
-cp /tmp/s2_run/improve.safetensors /tmp/s2_run/log.jsonl "$OUT/" 2>/dev/null
-tar czf "$OUT/logs.tgz" -C /tmp s2_logs
+grep -v "it/s\]" "$W/s2_logs/train.log" | tail -5
+tail -3 "$W/s2_run/log.jsonl"
+cp "$W/s2_run/improve.safetensors" "$W/s2_run/log.jsonl" "$OUT/" 2>/dev/null
+tar czf "$OUT/logs.tgz" -C "$W" s2_logs
 ls -la "$OUT"

@@ -182,3 +182,84 @@ def test_stage2_v17_curates_half_size_splats_of_its_subset_then_runs_v16s_fill_r
     assert sorted(_links(root / "data" / "s2v16_scenes")) == [
         "near_far_020000", "open_010000", "room_010001",
     ]  # fmt: skip
+
+
+FAKE_PY = """#!/usr/bin/env bash
+# gpu_train_stage2.sh's python: pip and the prosplat training commands are recorded and faked
+# (curate writes its --out, improve a log of 20 steps in 10 s), the rest runs for real
+echo "$*" >> "$CALLS"
+[ "$1 $2" = "-m pip" ] && exit 0
+if [ "$1 $2 $3" = "-m prosplat train" ]; then
+  args=("$@")
+  for ((i = 0; i < $#; i++)); do [ "${args[$i]}" = --out ] && out=${args[$((i + 1))]}; done
+  if [ "$4" = curate ]; then touch "$out"; echo "curated set: $out"; exit 0; fi
+  mkdir -p "$out"
+  printf '{"step": 20, "seconds": 1.0}\\n{"step": 40, "seconds": 11.0}\\n' > "$out/log.jsonl"
+  touch "$out/improve.safetensors"
+  exit 0
+fi
+exec "$REAL_PY" "$@"
+"""
+
+
+def test_gpu_stage2_curates_in_slices_then_trains_for_the_time_left(tmp_path: Path) -> None:
+    """scripts/gpu_train_stage2.sh with its python faked: every scene of the pack is curated
+    once per set, in SHARDS slices with each set's views, size and refinement; the probe's
+    step time sets the step count; the options reach both runs; a second call on the warm
+    machine curates nothing again."""
+    import sys
+
+    from synthetic_scenes import write_synthetic_scene
+
+    from prosplat.data.packed import pack_scenes
+
+    for k in range(5):
+        write_synthetic_scene(tmp_path / "scenes" / f"s{k}", size=16, n_views=3)
+    pack = pack_scenes(sorted((tmp_path / "scenes").iterdir()), tmp_path / "p.npz", depth=False)
+    fake = tmp_path / "fakepy"
+    fake.write_text(FAKE_PY)
+    fake.chmod(0o755)
+    calls = tmp_path / "calls.txt"
+    env = {
+        "PATH": "/usr/bin:/bin", "PY": str(fake), "REAL_PY": sys.executable, "CALLS": str(calls),
+        "PACKS": str(pack), "SHARDS": "2", "WORK": str(tmp_path / "w"), "OUT": str(tmp_path / "o"),
+        "SETS": "raw64:2,3:64:0 ref64:2:64:300",
+    }  # fmt: skip
+    cmd = ["bash", str(SCRIPTS / "gpu_train_stage2.sh"), "10000", "--crop", "48", "--fill"]
+    run = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
+                         timeout=120)  # fmt: skip
+    assert run.returncode == 0, run.stdout + run.stderr
+    lines = [line.split() for line in calls.read_text().splitlines()]
+    curates = [a for a in lines if a[:4] == ["-m", "prosplat", "train", "curate"]]
+    got = {(a[a.index("--out") + 1].split("/")[-1], a[a.index("--views") + 1],
+            a[a.index("--refine-steps") + 1], a[a.index("--first") + 1], a[a.index("--count") + 1])
+           for a in curates}  # fmt: skip
+    assert got == {
+        ("raw64_0.safetensors", "2,3", "0", "0", "3"), ("raw64_1.safetensors", "2,3", "0", "3", "3"),
+        ("ref64_0.safetensors", "2", "300", "0", "3"), ("ref64_1.safetensors", "2", "300", "3", "3"),
+    }  # fmt: skip
+    assert all(a[a.index("--data") + 1] == str(pack) for a in curates)
+    probe, train = [a for a in lines if a[:4] == ["-m", "prosplat", "train", "improve"]]
+    assert probe[probe.index("--steps") + 1] == "60"
+    # 0.5 s a step, 80 % of the ~9,950 s left: 15,800-15,900 steps, in hundreds
+    assert int(train[train.index("--steps") + 1]) in (15800, 15900)
+    sets = train[train.index("--data") + 1].split(",")
+    assert [s.split("/")[-1] for s in sets] == [
+        "raw64_0.safetensors",
+        "raw64_1.safetensors",
+        "ref64_0.safetensors",
+        "ref64_1.safetensors",
+    ]
+    for a in (probe, train):
+        assert a[a.index("--device") + 1] == "cuda" and "--fill" in a
+        assert a[a.index("--init") + 1] == "prosplat/weights/improve_tiny.safetensors"
+    assert {p.name for p in (tmp_path / "o").iterdir()} == {
+        "improve.safetensors",
+        "log.jsonl",
+        "logs.tgz",
+    }
+    calls.write_text("")
+    again = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
+                           timeout=120)  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert "train curate" not in calls.read_text()
