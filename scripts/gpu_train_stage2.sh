@@ -53,7 +53,7 @@ gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else "no GPU"
 print("torch", torch.__version__, gpu, "cores", os.cpu_count())
 EOF
 packs=$(ls ${PACKS:-.gpu/*.npz} | paste -sd, -)
-n=$($PY -c "from prosplat.train.curate import scene_sources as s; print(len(s('$packs')))")
+n=$($PY -c "from prosplat.data.dataset import scene_sources as s; print(len(s('$packs'.split(','))))")
 shards=${SHARDS:-8}
 per=$(((n + shards - 1) / shards))
 echo "setup $(($(date +%s) - t0)) s; $n scenes in $packs, $shards shards of $per per set"

@@ -26,9 +26,9 @@ def loads(monkeypatch):
     seen: list[str] = []
     real = dataset_module.load_scene
 
-    def counting(folder):
+    def counting(folder, **kwargs):
         seen.append(folder.name)
-        return real(folder)
+        return real(folder, **kwargs)
 
     monkeypatch.setattr(dataset_module, "load_scene", counting)
     return seen

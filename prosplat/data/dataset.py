@@ -5,13 +5,16 @@ from __future__ import annotations
 import random
 from collections import OrderedDict
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
 from prosplat.data.scene import SceneData, load_scene
+
+if TYPE_CHECKING:
+    from prosplat.data.packed import Pack
 
 
 def find_scenes(root: str | Path) -> list[Path]:
@@ -28,6 +31,34 @@ def find_scenes(root: str | Path) -> list[Path]:
         raise FileNotFoundError(f"no scene folder or dataset folder at {root}")
     found = (p.parent for p in root.glob("*/transforms.json"))
     return sorted(p for p in found if not p.name.startswith("."))
+
+
+def scene_sources(roots: list[str | Path] | str | Path) -> list[Path | tuple[Pack, int]]:
+    """Every scene of ``roots`` (dataset folders, scene folders and scene packs, ``.npz``), in
+    order: a scene folder, or (pack, index in the pack). :func:`load_source` loads one."""
+    from prosplat.data.packed import PACK_SUFFIX, Pack
+
+    roots = [roots] if isinstance(roots, (str, Path)) else roots
+    out: list[Path | tuple[Pack, int]] = []
+    for r in roots:
+        if Path(r).suffix == PACK_SUFFIX:
+            pack = Pack(r)
+            out += [(pack, i) for i in range(len(pack))]
+        else:
+            out += find_scenes(r)
+    return out
+
+
+def source_name(source: Path | tuple[Pack, int]) -> str:
+    """The scene folder's name (in a pack: the name it was packed under)."""
+    return source[0].index[source[1]]["name"] if isinstance(source, tuple) else source.name
+
+
+def load_source(source: Path | tuple[Pack, int], load_depth: bool = True) -> SceneData:
+    """Load one entry of :func:`scene_sources` (``load_depth=False``: without its depth)."""
+    if isinstance(source, tuple):
+        return source[0].scene(source[1], load_depth=load_depth)
+    return load_scene(source, load_depth=load_depth)
 
 
 class ItemKey(NamedTuple):
@@ -83,17 +114,8 @@ class SceneDataset(Dataset):
         cache_size: int = 32,
         any_view: bool = False,
     ):
-        from prosplat.data.packed import PACK_SUFFIX, Pack
-
-        roots = [roots] if isinstance(roots, (str, Path)) else roots
         # each scene: a folder, or (pack, index in the pack)
-        self.folders: list[Path | tuple[Pack, int]] = []
-        for r in roots:
-            if Path(r).suffix == PACK_SUFFIX:
-                pack = Pack(r)
-                self.folders += [(pack, i) for i in range(len(pack))]
-            else:
-                self.folders += find_scenes(r)
+        self.folders = scene_sources(roots)
         if not self.folders:
             raise FileNotFoundError(f"no scenes (folders with transforms.json) under {roots}")
         if cache_size < 0:
@@ -121,8 +143,7 @@ class SceneDataset(Dataset):
         if sc is not None:
             self._cache.move_to_end(index)
             return sc
-        source = self.folders[index]
-        sc = source[0].scene(source[1]) if isinstance(source, tuple) else load_scene(source)
+        sc = load_source(self.folders[index])
         if self.cache_size > 0:
             self._cache[index] = sc
             while len(self._cache) > self.cache_size:

@@ -123,13 +123,14 @@ class Pack:
     def names(self) -> list[str]:
         return [e["name"] for e in self.index]
 
-    def scene(self, i: int) -> SceneData:
+    def scene(self, i: int, load_depth: bool = True) -> SceneData:
+        """Scene ``i``, decoded now (``load_depth=False`` or a pack without depth: no depth)."""
         e, z = self.index[i], self._npz
         images = torch.stack([_decode_jpeg(z[f"s{i}_img{v}"]) for v in range(e["views"])])
         K, w2c = torch.from_numpy(z[f"s{i}_K"]), torch.from_numpy(z[f"s{i}_w2c"])
         h, w = images.shape[-2:]
-        depth_key = f"s{i}_depth"  # absent in packs made without depth
-        depths = z[depth_key].astype(np.float32) if depth_key in z.files else None
+        read = load_depth and self.has_depth  # packs made without depth have none
+        depths = z[f"s{i}_depth"].astype(np.float32) if read else None
         return SceneData(
             images=images,  # [V,3,H,W]
             depths=None if depths is None else torch.from_numpy(depths),  # [V,H,W]

@@ -10,17 +10,16 @@ writes one safetensors file), never committed.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
-from functools import partial
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
-from prosplat.data.dataset import find_scenes
-from prosplat.data.scene import SceneData, load_scene, resize_views
+from prosplat.data.dataset import load_source, scene_sources, source_name
+from prosplat.data.scene import resize_views
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
@@ -139,7 +138,7 @@ def curate(
         raise ValueError(f"first must be >= 0 and count >= 1, got first={first}, count={count}")
     from tqdm import tqdm
 
-    sources = scene_sources(root)
+    sources = scene_sources(str(root).split(","))
     if not sources:
         raise FileNotFoundError(f"no scenes (folders with transforms.json, or packs) in {root}")
     sources = sources[first : None if count is None else first + count]
@@ -150,10 +149,9 @@ def curate(
         raise FileExistsError(f"{out} exists; pass overwrite=True (--overwrite) to replace it")
     cols: dict[str, list[Tensor]] = {}
     size = None
-    for s, (name, load) in enumerate(
-        tqdm(sources, desc="curating", unit="scene", disable=not progress)
-    ):
-        scene = load()
+    for s, source in enumerate(tqdm(sources, desc="curating", unit="scene", disable=not progress)):
+        name = source_name(source)
+        scene = load_source(source, load_depth=False)
         if height is not None:
             images, cameras = resize_views(scene.images, scene.cameras, height)
             scene = replace(scene, images=images, cameras=cameras)
@@ -178,7 +176,7 @@ def curate(
     tensors = {k: torch.stack(v) for k, v in cols.items()}
     meta = {
         "format": CURATED_FORMAT,
-        "scenes": json.dumps([name for name, _ in sources]),
+        "scenes": json.dumps([source_name(source) for source in sources]),
         "views": json.dumps(list(views)),
         "refine_steps": str(int(refine_steps)),
         "height": str(height or ""),
@@ -189,22 +187,6 @@ def curate(
         "command": command,
     }
     return write_checkpoint(tensors, out, meta, overwrite)
-
-
-def scene_sources(root: str | Path) -> list[tuple[str, Callable[[], SceneData]]]:
-    """(name, loader) for each scene in ``root``: folders (a dataset folder or one scene) and
-    scene packs (``.npz``), comma-separated; loaders decode on demand (a pack's images are JPEG
-    bytes), without depth where the scene has a choice."""
-    from prosplat.data.packed import PACK_SUFFIX, Pack
-
-    out: list[tuple[str, Callable[[], SceneData]]] = []
-    for part in str(root).split(","):
-        if Path(part).suffix == PACK_SUFFIX:
-            pack = Pack(part)
-            out += [(n, partial(pack.scene, i)) for i, n in enumerate(pack.names())]
-        else:
-            out += [(f.name, partial(load_scene, f, load_depth=False)) for f in find_scenes(part)]
-    return out
 
 
 def load_curated(path: str | Path) -> CuratedSet:
