@@ -127,7 +127,7 @@ def sweep_depths(
         raise ValueError(f"depths must be [V,H,W] = [{v},{h},{w}], got {list(depths.shape)}")
     if len(cameras) != v:
         raise ValueError(f"one camera per image: got {len(cameras)} cameras for {v} images")
-    if v < max(2, options.min_views):  # nothing (or too little) to match against
+    if v < options.min_views:  # too little to match against (check() keeps it >= 2)
         return depths.clone(), torch.zeros(v, h, w, dtype=torch.bool, device=depths.device)
     top = options.max_height
     if top is None or h <= top:
