@@ -6,7 +6,7 @@
 #   .gpu/  the LPIPS weights in float16 (the script widens them back) and the scenes as a
 #          depth-free pack, .gpu/s2_000.npz (`prosplat scenes pack --no-depth`)
 # Both folders go into .git/info/exclude, so the call carries them only when named in its
-# carry: ["`.gpu`", "`.whl`"]. An existing pack is kept (delete it to pack other scenes).
+# carry: ["`.gpu`", "`.whl`"]. The pack is made again when SCENES changed.
 # Prints the size the call will carry: tracked files + .gpu + .whl must stay under 64 MiB
 # (about 200 scenes with today's 25 MiB tree).
 #   [SCENES="FIRST-LAST ..."] scripts/gpu_stage2_prepare.sh
@@ -44,8 +44,14 @@ EOF
 . scripts/scene_subset.sh
 # shellcheck disable=SC2046  # hard_rounds prints seed ranges
 scene_subset data/gpu_s2_scenes "${SCENES:-10000-10135 $(hard_rounds 2)}"
-[ -e .gpu/s2_000.npz ] || "$P" scenes pack --data data/gpu_s2_scenes --out .gpu/s2 --no-depth \
-  --max-mb 60
+# scene_subset leaves the folder (and its time) alone when the scenes are the same, so a pack
+# newer than it holds these scenes; otherwise the old pack (made from data/ here) is replaced
+if [ -e .gpu/s2_000.npz ] && [ .gpu/s2_000.npz -nt data/gpu_s2_scenes ]; then
+  echo "keeping .gpu/s2_*.npz: it packs these scenes"
+else
+  rm -f .gpu/s2_*.npz
+  "$P" scenes pack --data data/gpu_s2_scenes --out .gpu/s2 --no-depth --max-mb 60
+fi
 tree=$( (git ls-files -z; git ls-files -z --others --exclude-standard) | xargs -0 stat -c %s \
   | awk '{s += $1} END {print s}')
 extra=$(du -cb .gpu .whl | tail -1 | cut -f1)

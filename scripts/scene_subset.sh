@@ -33,10 +33,10 @@ _subset_links() {
   for link in "$1"/*; do printf '%s %s\n' "$(basename "$link")" "$(readlink "$link")"; done | sort
 }
 
-# The hard scenes of render rounds 0..N-1, as seed ranges for scene_subset: seeds
-# 20000 + 100 kind + 2 round (+1), six kinds.
-#   hard_rounds N
+# The hard scenes of render rounds FIRST..N-1 (FIRST default 0), as seed ranges for
+# scene_subset: seeds 20000 + 100 kind + 2 round (+1), six kinds.
+#   hard_rounds N [FIRST]
 hard_rounds() {
-  local k
-  for k in 0 1 2 3 4 5; do printf '20%d00-20%d%02d ' "$k" "$k" $((2 * $1 - 1)); done
+  local k first=${2:-0}
+  for k in 0 1 2 3 4 5; do printf '20%d%02d-20%d%02d ' "$k" $((2 * first)) "$k" $((2 * $1 - 1)); done
 }

@@ -96,6 +96,15 @@ def test_scene_subset_side_by_side_runs_never_see_a_missing_scene(root: Path) ->
     ]
 
 
+def test_hard_rounds_lists_the_rounds_asked_for(root: Path) -> None:
+    """Round r of hard scenes is seeds 20000 + 100 kind + 2r and + 2r + 1, six kinds."""
+    r = _bash(root, "hard_rounds 2; echo; hard_rounds 4 2")
+    assert r.returncode == 0, r.stderr
+    first, later = r.stdout.splitlines()
+    assert first.split() == [f"20{k}00-20{k}03" for k in range(6)]
+    assert later.split() == [f"20{k}04-20{k}07" for k in range(6)]
+
+
 def _run_script(root: Path, name: str, env: dict[str, str], *args: str):
     """Run scripts/NAME from a copy of scripts/ under ``root`` (the scripts cd to their
     parent), with PROSPLAT=echo so the training command is printed, not run."""
