@@ -60,8 +60,15 @@ def cmd_train_improve(args: argparse.Namespace) -> int:
     from prosplat.train.improve import ImproveTrainConfig, train_improve
 
     cfg = ImproveTrainConfig(**{f.name: getattr(args, f.name) for f in fields(ImproveTrainConfig)})
-    print(f"improvement model: {train_improve(cfg).resolve()}")
-    return 0
+    path = train_improve(cfg)
+    print(f"improvement model: {path.resolve()}")
+    # Ctrl-C saves the weights so far and returns; exit as an interrupted command does (130),
+    # so `train improve ... && next` stops there
+    from safetensors import safe_open
+
+    with safe_open(str(path), "pt") as f:
+        steps = int(f.metadata().get("steps", cfg.steps))
+    return 130 if steps < cfg.steps else 0
 
 
 def cmd_train_joint(args: argparse.Namespace) -> int:

@@ -180,6 +180,31 @@ def test_an_interrupted_run_saves_its_weights_and_resumes(setup, tmp_path, monke
     assert read_checkpoint(path, "stage 2")[1]["steps"] == "5"
 
 
+def test_the_cli_exits_130_when_interrupted_and_0_when_done(setup, tmp_path, monkeypatch) -> None:
+    """`prosplat train improve ... && next` must stop at Ctrl-C, as after any interrupted
+    command, though the weights so far are saved; the resumed run that finishes exits 0."""
+    import prosplat.train.improve as improve_mod
+    from prosplat.cli import main
+
+    _, _, curated = setup
+    argv = ["train", "improve", "--data", str(curated), "--out", str(tmp_path / "run"),
+            "--steps", "3", "--batch", "2", "--lpips-weight", "0", "--device", "cpu"]  # fmt: skip
+    real = improve_mod.enhance_loss
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(improve_mod, "enhance_loss", interrupted)
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    assert stopped.value.code == 130
+    assert (tmp_path / "run" / "improve.safetensors").is_file()
+    monkeypatch.setattr(improve_mod, "enhance_loss", real)
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code == 0
+
+
 def test_training_lowers_the_loss(setup, tmp_path) -> None:
     _, _, curated = setup
     data = load_curated(curated)
