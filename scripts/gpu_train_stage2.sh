@@ -17,6 +17,9 @@
 # SETS="NAME:VIEWS:SIZE:REFINE_STEPS ..." the curated sets (default raw64:2,3,4,6:64:0
 #   raw128:2,4:128:0; e.g. add ref64:2,4:64:300 for renders refined as `prosplat.refine` does).
 # INIT= another stage 2 to start from (default: the shipped one; a file that travels too).
+# GENERATOR= the generator whose renders are curated (default: the shipped one; a candidate's
+#   .safetensors travels in the carry, e.g. under .gpu/). A warm machine reuses the sets an
+#   earlier call curated: give another WORK= when GENERATOR or SETS change between calls.
 # What comes back in $OUT: improve.safetensors, log.jsonl, the curation and training logs (a
 # training run stopped by the time limit still saves improve.safetensors at the step reached).
 # Usage (repository root, on the GPU machine):
@@ -64,7 +67,7 @@ for k in $(seq 0 $((shards - 1))); do
     IFS=: read -r name views size refine <<< "$spec"
     [ -f "$W/s2_sets/${name}_$k.safetensors" ] && continue  # a warm machine's earlier call
     OMP_NUM_THREADS=1 $PY -m prosplat train curate --data "$packs" --views "$views" \
-      --size "$size" --generator-size 128 --refine-steps "$refine" --first $((k * per)) \
+      ${GENERATOR:+--generator "$GENERATOR"} --size "$size" --generator-size 128 --refine-steps "$refine" --first $((k * per)) \
       --count "$per" --out "$W/s2_sets/${name}_$k.safetensors" \
       > "$W/s2_logs/curate_${name}_$k.log" 2>&1 &
   done

@@ -248,6 +248,7 @@ def test_gpu_stage2_curates_in_slices_then_trains_for_the_time_left(tmp_path: Pa
         ("ref64_0.safetensors", "2", "300", "0", "3"), ("ref64_1.safetensors", "2", "300", "3", "3"),
     }  # fmt: skip
     assert all(a[a.index("--data") + 1] == str(pack) for a in curates)
+    assert not any("--generator" in a for a in curates)  # the shipped generator by default
     probe, train = [a for a in lines if a[:4] == ["-m", "prosplat", "train", "improve"]]
     assert probe[probe.index("--steps") + 1] == "60"
     # 0.5 s a step, 80 % of the ~9,950 s left: 15,800-15,900 steps, in hundreds
@@ -272,3 +273,11 @@ def test_gpu_stage2_curates_in_slices_then_trains_for_the_time_left(tmp_path: Pa
                            timeout=120)  # fmt: skip
     assert again.returncode == 0, again.stderr
     assert "train curate" not in calls.read_text()
+    # a candidate generator's renders, curated afresh in another WORK folder
+    env = {**env, "GENERATOR": ".gpu/gen v8.safetensors", "WORK": str(tmp_path / "w2")}
+    other = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
+                           timeout=120)  # fmt: skip
+    assert other.returncode == 0, other.stdout + other.stderr
+    curates = [line for line in calls.read_text().splitlines() if "train curate" in line]
+    assert len(curates) == 4
+    assert all("--generator .gpu/gen v8.safetensors --size" in c for c in curates)
