@@ -7,6 +7,7 @@ Kept apart from :mod:`prosplat.cli` so each file stays small; ``cli.build_parser
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import fields
 from pathlib import Path
@@ -63,7 +64,10 @@ def cmd_train_improve(args: argparse.Namespace) -> int:
     path = train_improve(cfg)
     print(f"improvement model: {path.resolve()}")
     # Ctrl-C saves the weights so far and returns; exit as an interrupted command does (130),
-    # so `train improve ... && next` stops there
+    # so `train improve ... && next` stops there. Only the rank that saved the file reads it
+    # (torchrun's other ranks return while it is written).
+    if int(os.environ.get("RANK", "0")) != 0:
+        return 0
     from safetensors import safe_open
 
     with safe_open(str(path), "pt") as f:

@@ -67,8 +67,9 @@ for k in $(seq 0 $((shards - 1))); do
     IFS=: read -r name views size refine <<< "$spec"
     [ -f "$W/s2_sets/${name}_$k.safetensors" ] && continue  # a warm machine's earlier call
     OMP_NUM_THREADS=1 $PY -m prosplat train curate --data "$packs" --views "$views" \
-      ${GENERATOR:+--generator "$GENERATOR"} --size "$size" --generator-size 128 --refine-steps "$refine" --first $((k * per)) \
-      --count "$per" --out "$W/s2_sets/${name}_$k.safetensors" \
+      ${GENERATOR:+--generator "$GENERATOR"} --size "$size" --generator-size 128 \
+      --refine-steps "$refine" --first $((k * per)) --count "$per" \
+      --out "$W/s2_sets/${name}_$k.safetensors" \
       > "$W/s2_logs/curate_${name}_$k.log" 2>&1 &
   done
 done
