@@ -68,11 +68,10 @@ def cmd_train_improve(args: argparse.Namespace) -> int:
     # (torchrun's other ranks return while it is written).
     if int(os.environ.get("RANK", "0")) != 0:
         return 0
-    from safetensors import safe_open
+    from prosplat.train.common import weights_step
 
-    with safe_open(str(path), "pt") as f:
-        steps = int(f.metadata().get("steps", cfg.steps))
-    return 130 if steps < cfg.steps else 0
+    steps = weights_step(path, key="steps")
+    return 130 if steps is not None and steps < cfg.steps else 0
 
 
 def cmd_train_joint(args: argparse.Namespace) -> int:

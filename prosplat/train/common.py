@@ -262,13 +262,14 @@ def save_checkpoint(
     return ckpt
 
 
-def weights_step(path: str | Path) -> int | None:
-    """The step stored in a checkpoint's safetensors metadata (None for files without one)."""
+def weights_step(path: str | Path, key: str = "step") -> int | None:
+    """The step stored in a checkpoint's safetensors metadata under ``key`` (None for files
+    without one; stage-2 weights store it as ``steps``)."""
     from safetensors import safe_open
 
     with safe_open(str(path), framework="pt") as f:
         meta = f.metadata() or {}
-    return int(meta["step"]) if "step" in meta else None
+    return int(meta[key]) if key in meta else None
 
 
 def load_checkpoint(
