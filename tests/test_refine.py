@@ -299,3 +299,40 @@ def test_cross_view_term_renders_each_view_from_the_others(scene):
         refine(start, images, cams, steps=1, view_index=view_index + 1, options=cross)
     with pytest.raises(ValueError, match="cross_view_weight"):
         refine(start, images, cams, steps=1, options=RefineOptions(cross_view_weight=-1.0))
+
+
+def test_coarse_fraction_fits_half_size_views_first(scene, monkeypatch):
+    """coarse_fraction=f renders the first f of the steps at half size against the area-
+    averaged images (the camera resized), then the rest at full size; the fit still lowers
+    the full-size loss, and views too small for the SSIM window at half size stay whole."""
+    import prosplat.refine as refine_module
+
+    images, cams = inputs(scene)
+    sizes = []
+    real_render = refine_module.render
+
+    def spy(g, cam, *args, **kwargs):
+        sizes.append((cam.width, cam.height))
+        return real_render(g, cam, *args, **kwargs)
+
+    monkeypatch.setattr(refine_module, "render", spy)
+    res = refine(scene["start"], images, cams, steps=9,
+                 options=RefineOptions(coarse_fraction=0.5))  # fmt: skip
+    half, full = (SIZE // 2, SIZE // 2), (SIZE, SIZE)
+    # frac = step / 8 < 0.5 for steps 0-3, then full size
+    assert sizes == [half] * 4 + [full] * 5
+    assert input_loss(res.gaussians, scene) < input_loss(scene["start"], scene)
+    # the first step's loss is measured at half size, against the area-averaged image
+    small = torch.nn.functional.interpolate(images, size=half, mode="area")
+    with torch.no_grad():
+        coarse = [float(photometric_loss(real_render(scene["start"], c.resized(*half)).rgb, im))
+                  for c, im in zip(cams, small)]  # fmt: skip
+    assert min(abs(res.stats.loss_history[0] - c) for c in coarse) < 1e-6, coarse
+
+    sizes.clear()
+    tiny = torch.nn.functional.interpolate(images, size=(20, 20), mode="area")
+    tiny_cams = [c.resized(20, 20) for c in cams]
+    refine(scene["start"], tiny, tiny_cams, steps=3, options=RefineOptions(coarse_fraction=1.0))
+    assert sizes == [(20, 20)] * 3  # 10 px is under the SSIM window: no coarse steps
+    with pytest.raises(ValueError, match="coarse_fraction"):
+        refine(scene["start"], images, cams, steps=1, options=RefineOptions(coarse_fraction=1.5))
