@@ -62,8 +62,6 @@ VARIANTS: dict[str, RefineOptions] = {
     "cross 0.3": RefineOptions.unregularised(cross_view_weight=0.3),
     "cross 1": RefineOptions.unregularised(cross_view_weight=1.0),
     "cross 3": RefineOptions.unregularised(cross_view_weight=3.0),
-    "coarse 0.5": RefineOptions.unregularised(coarse_fraction=0.5),
-    "coarse 0.75": RefineOptions.unregularised(coarse_fraction=0.75),
     "cross 1, means lr x10": RefineOptions.unregularised(
         cross_view_weight=1.0, lr=replace(RefineOptions().lr, means=RefineOptions().lr.means * 10)
     ),

@@ -103,12 +103,6 @@ class RefineOptions:
             Gaussian); 0 or no ``view_index`` turns it off.
         sh_degree: SH degree fitted: an int 0-3, or ``"auto"`` (:func:`sh_degree_for_views`:
             raised only when the views allow). Bands above the Gaussians' own start at zero.
-        coarse_fraction: the first this fraction of the run (of the steps, or of the time
-            budget) fits each view at half its size (the camera ``resized``, the image
-            area-averaged): a step there costs about a quarter, so early steps, which move
-            colours and opacities a long way, come cheap and the full-size steps that follow
-            refine the detail. The depth and cross-view terms apply to full-size steps only
-            (0: off; views under 22 px high are always fitted whole, for the SSIM window).
         background: RGB behind the Gaussians (default black, as the generator renders).
         cull: render each step only the Gaussians that can touch that view (a conservative
             bound, :func:`may_touch`); the image and gradients are bitwise those of rendering
@@ -134,7 +128,6 @@ class RefineOptions:
     scale_weight: float = 0.0
     freeze_means_steps: int = 0
     cross_view_weight: float = 0.0
-    coarse_fraction: float = 0.0
     sh_degree: int | str = "auto"
     background: tuple[float, float, float] | None = None
     cull: bool = False
@@ -159,10 +152,6 @@ class RefineOptions:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"RefineOptions.{name} must be a finite number >= 0, got {value}")
-        if not (math.isfinite(self.coarse_fraction) and 0 <= self.coarse_fraction <= 1):
-            raise ValueError(
-                f"RefineOptions.coarse_fraction must be in [0, 1], got {self.coarse_fraction}"
-            )
         if self.ssim_weight > 1:
             raise ValueError(f"RefineOptions.ssim_weight must be in [0, 1], got {self.ssim_weight}")
         if int(self.freeze_means_steps) != self.freeze_means_steps or self.freeze_means_steps < 0:
@@ -480,11 +469,6 @@ def refine(
         vi = view_index.to(device)
         others = [torch.nonzero(vi != i).squeeze(1) for i in range(v)]
     backend = "cpu-fused" if options.fused_projection and device.type == "cpu" else "auto"
-    h, w = images.shape[-2:]
-    coarse = options.coarse_fraction if min(h // 2, w // 2) >= SSIM_WINDOW else 0.0
-    if coarse > 0:  # [V,3,H/2,W/2] and their cameras: the cheap first part of the run
-        small = F.interpolate(images, size=(h // 2, w // 2), mode="area")
-        small_cams = [c.resized(w // 2, h // 2) for c in cameras]
     gen = torch.Generator().manual_seed(int(seed))
     order: list[int] = []
     history: list[float] = []
@@ -511,22 +495,20 @@ def refine(
             order = torch.randperm(v, generator=gen).tolist()
         i = order.pop()
         g = params.gaussians()
-        is_coarse = frac < coarse
-        cam, target = (small_cams[i], small[i]) if is_coarse else (cameras[i], images[i])
         if options.cull:  # only what can touch view i: the same image, less projection work
-            sub = may_touch(params, cam)
-            out = render(g[sub], cam, bg, backend)
+            sub = may_touch(params, cameras[i])
+            out = render(g[sub], cameras[i], bg, backend)
         else:
-            out = render(g, cam, bg, backend)
-        photo = photometric_loss(out.rgb, target, options.ssim_weight)
+            out = render(g, cameras[i], bg, backend)
+        photo = photometric_loss(out.rgb, images[i], options.ssim_weight)
         loss = photo
-        if use_depth and not is_coarse:
+        if use_depth:
             ref = depths[i]
             valid = (ref > 0) & (out.alpha.detach() > 0.5)
             if bool(valid.any()):
                 rel = (out.depth[valid] - ref[valid]).abs() / ref[valid]
                 loss = loss + options.depth_weight * rel.mean()
-        if others and len(others[i]) and not is_coarse:
+        if others and len(others[i]):
             cross = render(g[others[i]], cameras[i], bg, backend)
             covered = cross.alpha.detach() > 0.5  # [H,W]
             if bool(covered.any()):
