@@ -17,6 +17,13 @@ pixel (c, r) of view v at that pixel's depth. :func:`snap_output` slides each al
 the new depth and scales it by the depth ratio, so it covers the same pixel footprint and its
 own view renders as before; only where the other views see it changes.
 
+After the local sweep, one factor for the whole scene is chosen (:func:`scale_search`): all
+Gaussians slid along their rays by each of ``scale_candidates`` factors, every input view is
+re-rendered from all of them, and the factor whose renders match the inputs best wins. A
+view's own Gaussians draw it at any depth, so what the renders measure is where the *other*
+views' Gaussians land, occlusion included: a whole-scene match that still works where the
+windows of the local sweep match nothing (a bias of the generator over a textureless wall).
+
     >>> out = snap_output(out, images, cameras)  # a GeneratorOutput, B = 1
 """
 
@@ -33,7 +40,7 @@ from prosplat.baselines.plane_sweep import winner_take_all, zncc_cost
 from prosplat.camera import Camera
 from prosplat.generator.output import GeneratorOutput
 
-__all__ = ["DepthSweepOptions", "slide_along_rays", "snap_output", "sweep_depths"]
+__all__ = ["DepthSweepOptions", "scale_search", "slide_along_rays", "snap_output", "sweep_depths"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,11 @@ class DepthSweepOptions:
         min_views: fewer input views than this are left as the generator made them. With 2
             one other view votes, and on the 24 test scenes at 64 px the sweep gained nothing
             there (+0.02 dB enhanced, LPIPS +0.002; 6 views: +0.22 dB), so it saves the time.
+        scale_span, scale_candidates: the scene-wide factors :func:`scale_search` tries run
+            from ``exp(-scale_span)`` to ``exp(scale_span)``, evenly in log (9 at 0.2: 5 %
+            apart); fewer than 2 candidates turn the search off.
+        scale_height: the search renders and compares the views at most this high (the
+            Gaussians are the same; only where they land matters, not detail).
 
     The defaults are the best of those tried on the 8 validation scenes (data/val128) at 64
     and 128 px with generator v7 and stage 2 v16 (BENCHMARKS.md, "Depth sweep").
@@ -70,6 +82,9 @@ class DepthSweepOptions:
     smooth: float = 0.03
     max_height: int | None = 128
     min_views: int = 3
+    scale_span: float = 0.2
+    scale_candidates: int = 9
+    scale_height: int = 64
 
     def check(self) -> None:
         if not (math.isfinite(self.span) and 0 < self.span <= 2):
@@ -97,6 +112,19 @@ class DepthSweepOptions:
         if int(self.min_views) != self.min_views or self.min_views < 2:
             raise ValueError(
                 f"DepthSweepOptions.min_views must be an integer >= 2, got {self.min_views}"
+            )
+        if not (math.isfinite(self.scale_span) and 0 < self.scale_span <= 1):
+            raise ValueError(
+                f"DepthSweepOptions.scale_span must be in (0, 1], got {self.scale_span}"
+            )
+        if int(self.scale_candidates) != self.scale_candidates or self.scale_candidates < 0:
+            raise ValueError(
+                "DepthSweepOptions.scale_candidates must be an integer >= 0 (< 2: off), got "
+                f"{self.scale_candidates}"
+            )
+        if int(self.scale_height) != self.scale_height or self.scale_height < 16:
+            raise ValueError(
+                f"DepthSweepOptions.scale_height must be an integer >= 16, got {self.scale_height}"
             )
         if not (0 <= self.min_confidence < 1):
             raise ValueError(
@@ -207,8 +235,69 @@ def snap_output(
             f"the generator's depth maps are {list(depths.shape[-2:])} but the images are "
             f"{list(images.shape[-2:])}: sweep the images its Gaussians were placed at"
         )
-    new, _ = sweep_depths(images.to(depths.device), cameras, depths.detach(), options)
-    return slide_along_rays(out, cameras, new)
+    options = DepthSweepOptions() if options is None else options
+    images = images.to(depths.device)
+    new, _ = sweep_depths(images, cameras, depths.detach(), options)
+    out = slide_along_rays(out, cameras, new)
+    if options.scale_candidates >= 2 and len(cameras) >= options.min_views:
+        factor, _ = scale_search(out, images, cameras, options)
+        if factor != 1.0:
+            out = slide_along_rays(out, cameras, out.depths[0] * factor)
+    return out
+
+
+@torch.no_grad()
+def scale_search(
+    out: GeneratorOutput,
+    images: Tensor,
+    cameras: list[Camera],
+    options: DepthSweepOptions | None = None,
+) -> tuple[float, list[tuple[float, float]]]:
+    """The scene-wide depth factor whose Gaussians re-render the input views best.
+
+    For each candidate factor f (:class:`DepthSweepOptions` ``scale_span``,
+    ``scale_candidates``) every Gaussian of ``out`` (one scene, pixel-aligned with ``images
+    [V,3,H,W]``) is slid along its ray to f times its depth (:func:`slide_along_rays`), each
+    input camera is rendered from all of them at most ``scale_height`` high, and the mean
+    photometric loss against the inputs (refinement's L1 + SSIM) scores f. Ties go to the
+    factor nearest 1.
+
+    Why: the generator's depth errs by a scene-wide factor as well as locally (median 5 % too
+    near on the test scenes, 10 % on a real photo set), and a wrong factor is what refinement
+    cannot undo: it fits the inputs worse from there and novel views lose most
+    (BENCHMARKS.md, "A scene-wide depth factor"). The local sweep cannot see it where its
+    windows match nothing; rendering can, because each view's colours must land on the other
+    views' pixels.
+
+    Returns:
+        the winning factor and ``[(factor, loss), ...]`` for every candidate.
+    """
+    from prosplat.data.scene import resize_views
+    from prosplat.refine import photometric_loss
+    from prosplat.render import render
+
+    options = DepthSweepOptions() if options is None else options
+    options.check()
+    k = int(options.scale_candidates)
+    if k < 2:
+        return 1.0, [(1.0, math.nan)]
+    v, _, h, w = images.shape
+    if len(cameras) != v:
+        raise ValueError(f"one camera per image: got {len(cameras)} cameras for {v} images")
+    small, small_cams = resize_views(images.float(), list(cameras), min(h, options.scale_height))
+    logs = torch.linspace(-options.scale_span, options.scale_span, k, dtype=torch.float64)
+    depths = out.depths[0]
+    scored = []
+    for log_f in logs.tolist():
+        f = math.exp(log_f)
+        g = slide_along_rays(out, cameras, depths * f).gaussians(0).detach().to(dtype=torch.float32)
+        loss = sum(
+            float(photometric_loss(render(g, cam).rgb.clamp(0, 1), img.to(g.means.device)))
+            for cam, img in zip(small_cams, small)
+        )
+        scored.append((f, loss / v))
+    best = min(scored, key=lambda fl: (fl[1], abs(math.log(fl[0]))))[0]
+    return best, scored
 
 
 def slide_along_rays(

@@ -14,6 +14,7 @@ from prosplat.data import load_scene
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 from prosplat.depth_sweep import (
     DepthSweepOptions,
+    scale_search,
     slide_along_rays,
     snap_output,
     sweep_depths,
@@ -178,12 +179,62 @@ def test_the_pipeline_sweeps_when_asked(views):
         (DepthSweepOptions(smooth=-0.1), "smooth"),
         (DepthSweepOptions(max_height=16), "max_height"),
         (DepthSweepOptions(min_views=1), "min_views"),
+        (DepthSweepOptions(scale_span=0.0), "scale_span"),
+        (DepthSweepOptions(scale_candidates=-1), "scale_candidates"),
+        (DepthSweepOptions(scale_candidates=2.5), "scale_candidates"),
+        (DepthSweepOptions(scale_height=8), "scale_height"),
     ],
 )
 def test_bad_options_raise_naming_the_field(views, options, message):
     cams, images, depths = views
     with pytest.raises(ValueError, match=message):
         sweep_depths(images, cams, depths, options)
+
+
+@pytest.fixture(scope="module")
+def views64():
+    """The 4 orbit views at 64 px: at 32 px a pixel spans as much parallax as a 5 % depth
+    change, and the views' renders cannot tell the truth from 5 % nearer."""
+    cams = orbit_cameras(4, 64, 64, arc_deg=40.0)
+    truth = pixel_aligned_gaussians(cams)
+    images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)
+    depths = torch.stack([raycast(c)[0] for c in cams]).float()
+    return cams, images, depths
+
+
+@pytest.mark.parametrize("error", [0.9, 1.0, 1.12])
+def test_scale_search_undoes_a_scene_wide_depth_error(views64, error):
+    """Every view's Gaussians at ``error`` x the true depth: the factor that re-renders the
+    inputs best is the one that puts them back (within one 5 % step of the grid: a pixel of
+    parallax at 64 px is a few per cent of depth), and the truth is left where it is."""
+    import math
+
+    cams, images, depths = views64
+    out = output_from_images(cams, images, depths * error)
+    factor, scored = scale_search(out, images, cams)
+    assert len(scored) == DepthSweepOptions().scale_candidates
+    assert min(scored, key=lambda fl: fl[1])[0] == factor
+    assert abs(math.log(factor * error)) <= 0.05 + 1e-9, (error, factor, scored)
+    if error == 1.0:
+        assert factor == 1.0
+    off, _ = scale_search(out, images, cams, DepthSweepOptions(scale_candidates=0))
+    assert off == 1.0
+
+
+def test_snap_output_applies_the_scene_wide_factor(views):
+    """With the local sweep taking nothing (min_confidence just under 1), snap_output moves the
+    depth by the search's factor alone; with ``scale_candidates=0`` it leaves it."""
+    cams, images, depths = views
+    start = depths * 0.9
+    out = output_from_images(cams, images, start)
+    local_off = DepthSweepOptions(min_confidence=0.999)
+    snapped = snap_output(out, images, cams, local_off)
+    factor, _ = scale_search(out, images, cams, local_off)
+    assert factor > 1.05
+    assert torch.allclose(snapped.depths[0], start * factor, rtol=1e-5)
+    kept = snap_output(out, images, cams, DepthSweepOptions(min_confidence=0.999,
+                                                             scale_candidates=0))  # fmt: skip
+    assert torch.allclose(kept.depths[0], start, rtol=1e-6)
 
 
 def test_mismatched_shapes_raise(views):
