@@ -38,6 +38,7 @@ from torch import Tensor
 
 from prosplat.baselines.plane_sweep import winner_take_all, zncc_cost
 from prosplat.camera import Camera
+from prosplat.gaussians import Gaussians
 from prosplat.generator.output import GeneratorOutput
 
 __all__ = ["DepthSweepOptions", "scale_search", "slide_along_rays", "snap_output", "sweep_depths"]
@@ -258,9 +259,10 @@ def scale_search(
     For each candidate factor f (:class:`DepthSweepOptions` ``scale_span``,
     ``scale_candidates``) every Gaussian of ``out`` (one scene, pixel-aligned with ``images
     [V,3,H,W]``) is slid along its ray to f times its depth (:func:`slide_along_rays`), each
-    input camera is rendered from all of them at most ``scale_height`` high, and the mean
-    photometric loss against the inputs (refinement's L1 + SSIM) scores f. Ties go to the
-    factor nearest 1.
+    input camera is rendered from all of them at most ``scale_height`` high (from every
+    stride-th pixel's Gaussian, grown by the stride: what a render that small can show),
+    and the mean photometric loss against the inputs (refinement's L1 + SSIM) scores f.
+    Ties go to the factor nearest 1.
 
     Why: the generator's depth errs by a scene-wide factor as well as locally (median 5 % too
     near on the test scenes, 10 % on a real photo set), and a wrong factor is what refinement
@@ -284,16 +286,33 @@ def scale_search(
     v, _, h, w = images.shape
     if len(cameras) != v:
         raise ValueError(f"one camera per image: got {len(cameras)} cameras for {v} images")
+    if tuple(out.depths.shape[-2:]) != (h, w):
+        raise ValueError(
+            f"the output's depth maps are {list(out.depths.shape[-2:])} but the images are "
+            f"[{h}, {w}]: search with the images its Gaussians were placed at"
+        )
     small, small_cams = resize_views(images.float(), list(cameras), min(h, options.scale_height))
+    # Rendered this small, one Gaussian per `stride` x `stride` input pixels carries all the
+    # renders can show: every stride-th row and column of each view, each grown by the
+    # stride to cover its neighbours (a 256-px view's 65,536 Gaussians become 4,096).
+    stride = max(1, h // small.shape[-2])
+    rows = torch.arange(0, h, stride)
+    cols = torch.arange(0, w, stride)
+    pix = (rows[:, None] * w + cols[None, :]).reshape(-1)  # [P] pixels kept per view
+    idx = (torch.arange(v)[:, None] * (h * w) + pix[None, :]).reshape(-1).to(out.means.device)
+    g = out.gaussians(0).detach().to(dtype=torch.float32)[idx]
+    centres = torch.stack([c.center for c in cameras]).to(g.means)  # [V,3]
+    c = centres.repeat_interleave(len(pix), dim=0)  # [V·P,3]
+    offset = g.means - c  # [V·P,3] from each Gaussian's own camera
+    backend = "cpu-fused" if g.means.device.type == "cpu" else "auto"
     logs = torch.linspace(-options.scale_span, options.scale_span, k, dtype=torch.float64)
-    depths = out.depths[0]
     scored = []
     for log_f in logs.tolist():
-        f = math.exp(log_f)
-        g = slide_along_rays(out, cameras, depths * f).gaussians(0).detach().to(dtype=torch.float32)
+        f = math.exp(log_f)  # slid along its ray and grown by f: its own view is unchanged
+        gf = Gaussians(c + f * offset, g.quats, g.scales * (stride * f), g.opacities, g.sh)
         loss = sum(
-            float(photometric_loss(render(g, cam).rgb.clamp(0, 1), img.to(g.means.device)))
-            for cam, img in zip(small_cams, small)
+            float(photometric_loss(render(gf, cam, None, backend).rgb.clamp(0, 1), img))
+            for cam, img in zip(small_cams, small.to(g.means.device))
         )
         scored.append((f, loss / v))
     best = min(scored, key=lambda fl: (fl[1], abs(math.log(fl[0]))))[0]
