@@ -241,7 +241,11 @@ def snap_output(
     new, _ = sweep_depths(images, cameras, depths.detach(), options)
     out = slide_along_rays(out, cameras, new)
     if options.scale_candidates >= 2 and len(cameras) >= options.min_views:
-        factor, _ = scale_search(out, images, cameras, options)
+        from prosplat.budget import prune_pixel_aligned
+
+        # scored on what the pipeline keeps: one copy of each surface seen by several views
+        _, keep, _ = prune_pixel_aligned(out.gaussians(0).detach(), out.depths[0], cameras)
+        factor, _ = scale_search(out, images, cameras, options, keep=keep)
         if factor != 1.0:
             out = slide_along_rays(out, cameras, out.depths[0] * factor)
     return out
@@ -253,6 +257,7 @@ def scale_search(
     images: Tensor,
     cameras: list[Camera],
     options: DepthSweepOptions | None = None,
+    keep: Tensor | None = None,
 ) -> tuple[float, list[tuple[float, float]]]:
     """The scene-wide depth factor whose Gaussians re-render the input views best.
 
@@ -262,7 +267,11 @@ def scale_search(
     input camera is rendered from all of them at most ``scale_height`` high (from every
     stride-th pixel's Gaussian, grown by the stride: what a render that small can show),
     and the mean photometric loss against the inputs (refinement's L1 + SSIM) scores f.
-    Ties go to the factor nearest 1.
+    Ties go to the factor nearest 1. ``keep`` [N] bool: only these Gaussians are rendered
+    (the budget's survivors, :func:`prosplat.budget.prune_pixel_aligned`; None: all). With
+    every view's copy of a surface kept, each view's own copy covers its pixels whatever the
+    factor and the renders say less (on the 8 validation scenes at 64 px, +0.06 dB enhanced
+    against +0.2 with the pruned set).
 
     Why: the generator's depth errs by a scene-wide factor as well as locally (median 5 % too
     near on the test scenes, 10 % on a real photo set), and a wrong factor is what refinement
@@ -300,10 +309,14 @@ def scale_search(
     cols = torch.arange(0, w, stride)
     pix = (rows[:, None] * w + cols[None, :]).reshape(-1)  # [P] pixels kept per view
     idx = (torch.arange(v)[:, None] * (h * w) + pix[None, :]).reshape(-1).to(out.means.device)
+    if keep is not None:
+        if keep.shape != (out.means.shape[1],):
+            raise ValueError(f"keep must be [N] = [{out.means.shape[1]}], got {list(keep.shape)}")
+        idx = idx[keep.to(idx.device)[idx]]
     g = out.gaussians(0).detach().to(dtype=torch.float32)[idx]
     centres = torch.stack([c.center for c in cameras]).to(g.means)  # [V,3]
-    c = centres.repeat_interleave(len(pix), dim=0)  # [V·P,3]
-    offset = g.means - c  # [V·P,3] from each Gaussian's own camera
+    c = centres[torch.div(idx, h * w, rounding_mode="floor")]  # [M,3] each one's own camera
+    offset = g.means - c  # [M,3]
     backend = "cpu-fused" if g.means.device.type == "cpu" else "auto"
     logs = torch.linspace(-options.scale_span, options.scale_span, k, dtype=torch.float64)
     scored = []

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -408,6 +408,7 @@ class ProSplat:
         height: int | None = None,
         *,
         grad: bool = False,
+        depth_scale: bool = True,
     ) -> tuple[GeneratorOutput, list[Camera]]:
         """The generator as the pipeline runs it on inputs larger than ``height`` (None:
         :attr:`trained_size`; 0: the inputs' size): returns its output and the cameras its
@@ -422,7 +423,9 @@ class ProSplat:
         (:meth:`generator_views`) and the Gaussians come at that size. Why: matching is what
         does not carry to a size the weights were not trained at, while the Gaussians' colour
         and footprint gain from the full-size pixels (BENCHMARKS.md, "Gaussians at the inputs'
-        size").
+        size"). ``depth_scale``: the depth sweep also picks a scene-wide depth factor
+        (:func:`prosplat.depth_sweep.scale_search`); False leaves the local sweep alone, as
+        refinement wants (:meth:`reconstruct_refined`).
         """
         cameras = list(cameras)
         height = self.trained_size if height is None else height
@@ -432,22 +435,28 @@ class ProSplat:
         ):
             gen_images, gen_cameras = self.generator_views(images, cameras, height)
             out = self.reconstruct_full(gen_images, gen_cameras, near, far, grad=grad)
-            return self._swept(out, gen_images, gen_cameras), gen_cameras
+            return self._swept(out, gen_images, gen_cameras, depth_scale), gen_cameras
         from prosplat.data.scene import resize_views, resized_width
 
         top = min(h, MAX_GAUSSIAN_SCALE * int(height)) // 32 * 32
         images, cameras = resize_views(images, cameras, top)  # unchanged when already there
         match = (int(height), resized_width(images.shape[-1], images.shape[-2], int(height)))
         out = self.reconstruct_full(images, cameras, near, far, grad=grad, match_size=match)
-        return self._swept(out, images, cameras), cameras
+        return self._swept(out, images, cameras, depth_scale), cameras
 
-    def _swept(self, out: GeneratorOutput, images: Tensor, cameras: list[Camera]):
-        """``out`` after :attr:`depth_sweep` (unchanged when it is None)."""
+    def _swept(
+        self, out: GeneratorOutput, images: Tensor, cameras: list[Camera], depth_scale: bool
+    ) -> GeneratorOutput:
+        """``out`` after :attr:`depth_sweep` (unchanged when it is None), its scene-wide
+        factor left out unless ``depth_scale``."""
         if self.depth_sweep is None:
             return out
         from prosplat.depth_sweep import snap_output
 
-        return snap_output(out, images.to(self.device), cameras, self.depth_sweep)
+        options = self.depth_sweep
+        if not depth_scale:
+            options = replace(options, scale_candidates=0)
+        return snap_output(out, images.to(self.device), cameras, options)
 
     def reconstruct(
         self,
@@ -528,17 +537,21 @@ class ProSplat:
         *,
         budget: int | float | None = None,
         generator_height: int | None = None,
+        depth_scale: bool = True,
     ) -> PrunedReconstruction:
         """The generator as the pipeline runs it, then the Gaussian budget: the generator at
         most ``generator_height`` px high (:meth:`generator_views`; None: :attr:`trained_size`,
         0: the inputs' size), its pixel-aligned Gaussians pruned (``budget``: a count, a
         fraction, or None for the automatic budget) with the cameras at the size it ran at.
         Every caller that wants pruned Gaussians comes here, so none can pair the generator's
-        depth maps with cameras of another size."""
+        depth maps with cameras of another size. ``depth_scale``: as in :meth:`generate`
+        (pass False for Gaussians that will be refined)."""
         from prosplat.budget import prune_pixel_aligned
 
         t0 = time.perf_counter()
-        out, gen_cameras = self.generate(images, cameras, near, far, generator_height)
+        out, gen_cameras = self.generate(
+            images, cameras, near, far, generator_height, depth_scale=depth_scale
+        )
         t1 = time.perf_counter()
         depths = out.depths[0].detach()
         g, keep, stats = prune_pixel_aligned(
@@ -574,7 +587,9 @@ class ProSplat:
         ``cancel()`` as in :func:`~prosplat.refine.refine`. ``generator_height``: the generator
         runs at most this high (:meth:`generator_views`; None: :attr:`trained_size`, 0: the
         inputs' size) and refinement fits the full-size ``images``; the depth term is then off
-        (its maps are the generator's size).
+        (its maps are the generator's size). The depth sweep's scene-wide factor is left out
+        (``depth_scale=False``): refinement fits the inputs better from the local sweep's
+        depth.
 
         Returns:
             :class:`prosplat.refine.RefineResult` (``gaussians``, ``stats``); ``stats`` also
@@ -588,8 +603,16 @@ class ProSplat:
                 "give refine_steps or refine_seconds, not both (a step count or a time budget)"
             )
         cameras = list(cameras)
+        # no scene-wide depth factor: refinement fits the inputs better from the local sweep's
+        # depth (BENCHMARKS.md, "A scene-wide depth factor")
         pruned = self.reconstruct_pruned(
-            images, cameras, near, far, budget=budget, generator_height=generator_height
+            images,
+            cameras,
+            near,
+            far,
+            budget=budget,
+            generator_height=generator_height,
+            depth_scale=False,
         )
         g = pruned.gaussians
         result = refine(

@@ -169,6 +169,33 @@ def test_the_pipeline_sweeps_when_asked(views):
     assert len(swept.view_index) == len(swept.gaussians)
 
 
+def test_the_pipeline_scales_one_pass_views_but_not_what_it_refines(views, monkeypatch):
+    """reconstruct_pruned applies the search's factor (here forced to 1.1); depth_scale=False,
+    and so reconstruct_refined, the worker's refining path and curate's, leave it out."""
+    import prosplat.depth_sweep as depth_sweep
+
+    cams, images, _ = views
+    model = ProSplat(trained_size=SIZE)
+    model.depth_sweep = DepthSweepOptions()
+    calls = []
+
+    def forced(out, images, cameras, options=None, keep=None):
+        calls.append(len(cameras))
+        return 1.1, [(1.1, 0.0)]
+
+    monkeypatch.setattr(depth_sweep, "scale_search", forced)
+    plain = model.reconstruct_pruned(images, cams, depth_scale=False)
+    assert calls == []
+    scaled = model.reconstruct_pruned(images, cams)
+    assert calls == [len(cams)]
+    torch.testing.assert_close(scaled.depths, plain.depths * 1.1)
+    refined = model.reconstruct_refined(images, cams, steps=1)
+    assert calls == [len(cams)] and len(refined.gaussians) == len(plain.gaussians)
+    model.depth_sweep = DepthSweepOptions(scale_candidates=0)
+    model.reconstruct_pruned(images, cams)
+    assert calls == [len(cams)]
+
+
 @pytest.mark.parametrize(
     "options, message",
     [

@@ -68,8 +68,8 @@ def curate_scene(
         images = scene.images[idx]
         if refine_steps:
             pruned = model.reconstruct_pruned(
-                images, cams, near, far, generator_height=generator_height
-            )
+                images, cams, near, far, generator_height=generator_height, depth_scale=False
+            )  # as the pipeline refines
             input_depths = pruned.depths_for(images)  # None when the generator ran smaller
             gaussians = refine(
                 pruned.gaussians, images, cams, steps=refine_steps, seed=seed,

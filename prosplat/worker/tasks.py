@@ -189,16 +189,17 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     progress(
         0.35, f"running the generator on {len(cameras)} views{sweep}, then the Gaussian budget"
     )
+    refining = bool(params.get("refine_steps") or params.get("refine_seconds"))
     pruned = model.reconstruct_pruned(
         images.to(device), cameras, params.get("near"), params.get("far"),
-        budget=params.get("budget") or None,
+        budget=params.get("budget") or None, depth_scale=not refining,
     )  # fmt: skip
     gw, gh = pruned.cameras[0].width, pruned.cameras[0].height
     g, stats, t_gen = pruned.gaussians.to("cpu"), pruned.stats, pruned.generator_s
     if len(g) == 0:
         raise ValueError("the generator produced no visible Gaussians for these views")
     t_refine = 0.0
-    if params.get("refine_steps") or params.get("refine_seconds"):
+    if refining:
         depths = pruned.depths_for(images)
         depths = None if depths is None else depths.cpu()
         g, t_refine = _refine(params, g, images, cameras, depths, progress)
