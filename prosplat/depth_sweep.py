@@ -273,12 +273,13 @@ def scale_search(
     factor and the renders say less (on the 8 validation scenes at 64 px, +0.06 dB enhanced
     against +0.2 with the pruned set).
 
-    Why: the generator's depth errs by a scene-wide factor as well as locally (median 5 % too
-    near on the test scenes, 10 % on a real photo set), and a wrong factor is what refinement
-    cannot undo: it fits the inputs worse from there and novel views lose most
-    (BENCHMARKS.md, "A scene-wide depth factor"). The local sweep cannot see it where its
-    windows match nothing; rendering can, because each view's colours must land on the other
-    views' pixels.
+    Why: the generator's depth errs by a scene-wide factor as well as locally (v7's swept
+    depth lies a median 5 % too near on the test scenes, near-far scenes 74 %), and the local
+    sweep cannot see that where its windows match nothing; rendering can, because each
+    view's colours must land on the other views' pixels. On the test scenes the enhanced
+    views gain +0.12 / +0.08 / +0.02 dB at 64 / 128 / 256 px (BENCHMARKS.md, "A scene-wide
+    depth factor"). Refinement does not start from it (:meth:`prosplat.ProSplat.generate`'s
+    ``depth_scale``): on the fox photos it refines 0.6 dB worse from the scaled depth.
 
     Returns:
         the winning factor and ``[(factor, loss), ...]`` for every candidate.
