@@ -5,7 +5,9 @@ For every scene and size the pipeline reconstructs twice from the same inputs: w
 shipped depth sweep (local ZNCC sweep, then the scene-wide factor of
 :func:`prosplat.depth_sweep.scale_search`) and with the factor search off
 (``scale_candidates=0``). Each target is scored raw and enhanced and, with
-``--refine-steps N``, after N steps of refinement and enhanced; the table gives both means
+``--refine-steps N``, after N steps of refinement from each variant's own Gaussians and
+enhanced (what refining from the scaled depth would give: the pipeline itself refines
+without the factor, ``depth_scale=False``); the table gives both means
 and the paired difference with a 95 % bootstrap interval, overall and per scene type, and
 the factors the search chose.
 
