@@ -41,7 +41,14 @@ from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 from prosplat.generator.output import GeneratorOutput
 
-__all__ = ["DepthSweepOptions", "scale_search", "slide_along_rays", "snap_output", "sweep_depths"]
+__all__ = [
+    "DepthSweepOptions",
+    "scale_search",
+    "slide_along_rays",
+    "slide_gaussians",
+    "snap_output",
+    "sweep_depths",
+]
 
 
 @dataclass(frozen=True)
@@ -315,15 +322,14 @@ def scale_search(
             raise ValueError(f"keep must be [N] = [{out.means.shape[1]}], got {list(keep.shape)}")
         idx = idx[keep.to(idx.device)[idx]]
     g = out.gaussians(0).detach().to(dtype=torch.float32)[idx]
-    centres = torch.stack([c.center for c in cameras]).to(g.means)  # [V,3]
-    c = centres[torch.div(idx, h * w, rounding_mode="floor")]  # [M,3] each one's own camera
-    offset = g.means - c  # [M,3]
+    g = Gaussians(g.means, g.quats, g.scales * stride, g.opacities, g.sh)
+    view_index = torch.div(idx, h * w, rounding_mode="floor")  # [M] each one's own view
     backend = "cpu-fused" if g.means.device.type == "cpu" else "auto"
     logs = torch.linspace(-options.scale_span, options.scale_span, k, dtype=torch.float64)
     scored = []
     for log_f in logs.tolist():
-        f = math.exp(log_f)  # slid along its ray and grown by f: its own view is unchanged
-        gf = Gaussians(c + f * offset, g.quats, g.scales * (stride * f), g.opacities, g.sh)
+        f = math.exp(log_f)
+        gf = slide_gaussians(g, view_index, cameras, f)
         loss = sum(
             float(photometric_loss(render(gf, cam, None, backend).rgb.clamp(0, 1), img))
             for cam, img in zip(small_cams, small.to(g.means.device))
@@ -331,6 +337,22 @@ def scale_search(
         scored.append((f, loss / v))
     best = min(scored, key=lambda fl: (fl[1], abs(math.log(fl[0]))))[0]
     return best, scored
+
+
+def slide_gaussians(
+    gaussians: Gaussians, view_index: Tensor, cameras: list[Camera], factor: float
+) -> Gaussians:
+    """``gaussians`` (``view_index [N]``: the input view that predicted each) slid along their
+    rays to ``factor`` x their depth: means scaled about their own camera's centre, scales
+    by the same factor, so each still covers its footprint in its own view."""
+    if factor == 1.0:
+        return gaussians
+    centres = torch.stack([c.center for c in cameras]).to(gaussians.means)  # [V,3]
+    c = centres[view_index.to(centres.device)]  # [N,3]
+    means = c + factor * (gaussians.means - c)
+    return Gaussians(
+        means, gaussians.quats, gaussians.scales * factor, gaussians.opacities, gaussians.sh
+    )
 
 
 def slide_along_rays(

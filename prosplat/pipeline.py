@@ -427,6 +427,13 @@ class ProSplat:
         (:func:`prosplat.depth_sweep.scale_search`); False leaves the local sweep alone, as
         refinement wants (:meth:`reconstruct_refined`).
         """
+        out, _, gen_cameras = self._generate(images, cameras, near, far, height, grad, depth_scale)
+        return out, gen_cameras
+
+    def _generate(
+        self, images: Tensor, cameras, near, far, height, grad: bool, depth_scale: bool
+    ) -> tuple[GeneratorOutput, Tensor, list[Camera]]:
+        """:meth:`generate`, also returning the images at the size of its depth maps."""
         cameras = list(cameras)
         height = self.trained_size if height is None else height
         h = images.shape[-2]
@@ -435,14 +442,15 @@ class ProSplat:
         ):
             gen_images, gen_cameras = self.generator_views(images, cameras, height)
             out = self.reconstruct_full(gen_images, gen_cameras, near, far, grad=grad)
-            return self._swept(out, gen_images, gen_cameras, depth_scale), gen_cameras
+            out = self._swept(out, gen_images, gen_cameras, depth_scale)
+            return out, gen_images, gen_cameras
         from prosplat.data.scene import resize_views, resized_width
 
         top = min(h, MAX_GAUSSIAN_SCALE * int(height)) // 32 * 32
         images, cameras = resize_views(images, cameras, top)  # unchanged when already there
         match = (int(height), resized_width(images.shape[-1], images.shape[-2], int(height)))
         out = self.reconstruct_full(images, cameras, near, far, grad=grad, match_size=match)
-        return self._swept(out, images, cameras, depth_scale), cameras
+        return self._swept(out, images, cameras, depth_scale), images, cameras
 
     def _swept(
         self, out: GeneratorOutput, images: Tensor, cameras: list[Camera], depth_scale: bool
@@ -545,12 +553,16 @@ class ProSplat:
         fraction, or None for the automatic budget) with the cameras at the size it ran at.
         Every caller that wants pruned Gaussians comes here, so none can pair the generator's
         depth maps with cameras of another size. ``depth_scale``: as in :meth:`generate`
-        (pass False for Gaussians that will be refined)."""
+        (pass False for Gaussians that will be refined); here the factor is searched on the
+        budget's survivors and applied after the budget, so the same Gaussians are kept with
+        it and without it."""
         from prosplat.budget import prune_pixel_aligned
 
         t0 = time.perf_counter()
-        out, gen_cameras = self.generate(
-            images, cameras, near, far, generator_height, depth_scale=depth_scale
+        # the scene-wide factor is applied after the budget, so the same Gaussians survive
+        # with it and without it (refined and one-pass reconstructions keep one count)
+        out, gen_images, gen_cameras = self._generate(
+            images, cameras, near, far, generator_height, False, False
         )
         t1 = time.perf_counter()
         depths = out.depths[0].detach()
@@ -559,6 +571,15 @@ class ProSplat:
         )
         v, h, w = depths.shape
         view_index = torch.arange(v, device=keep.device).repeat_interleave(h * w)[keep]
+        options = self.depth_sweep
+        if depth_scale and options is not None and options.scale_candidates >= 2:
+            from prosplat.depth_sweep import scale_search, slide_gaussians
+
+            if v >= options.min_views:
+                gen_images = gen_images.to(self.device)
+                factor, _ = scale_search(out, gen_images, gen_cameras, options, keep=keep)
+                g = slide_gaussians(g, view_index, gen_cameras, factor)
+                depths = depths * factor
         return PrunedReconstruction(g, depths, gen_cameras, stats, t1 - t0,
                                     time.perf_counter() - t1, view_index)  # fmt: skip
 

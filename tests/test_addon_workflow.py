@@ -74,17 +74,16 @@ def _same_as_library(capture_dir: Path, obj) -> None:
 
     from addon.pointcloud import read_arrays
     from prosplat import ProSplat
-    from prosplat.budget import prune_gaussians
     from prosplat.convert import read_transforms
 
     tf = read_transforms(capture_dir / "transforms.json")
     cams = [f.camera for f in tf.frames]
     images = torch.stack([read_image(capture_dir / f.file_path) for f in tf.frames])
-    out, _ = ProSplat.from_pretrained(improve=False).generate(
-        images, cams, tf.meta["near"], tf.meta["far"], height=0
-    )  # the generator and its depth sweep, as the worker runs them
-    view_index = torch.arange(len(cams)).repeat_interleave(SIZE * SIZE)
-    want, _, _ = prune_gaussians(out.gaussians(0).detach(), view_index, out.depths[0], cams)
+    want = (
+        ProSplat.from_pretrained(improve=False)
+        .reconstruct_pruned(images, cams, tf.meta["near"], tf.meta["far"], generator_height=0)
+        .gaussians
+    )  # the generator, its depth sweep and the budget, as the worker runs them
     got = read_arrays(obj)["position"]
     assert got.shape[0] == len(want)
     np.testing.assert_allclose(got, want.means.numpy(), atol=1e-4, rtol=1e-4)

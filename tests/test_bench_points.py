@@ -16,6 +16,7 @@ from prosplat import ProSplat
 from prosplat.bench import pareto, points
 from prosplat.budget import prune_gaussians
 from prosplat.data import load_scene
+from prosplat.data.scene import resize_views
 from prosplat.evaluate import pick_inputs
 from prosplat.metrics import psnr
 from prosplat.render import render
@@ -159,9 +160,14 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
             expected = float(psnr(rgb, scene.images[r["target"]]))
             assert r["psnr"] == pytest.approx(expected, abs=1e-4) and r["gaussians"] == len(g)
             assert r["psnr_raw"] == r["psnr"] and r["dtype"] == "-"
-    # refinement starts from the base point's pruned Gaussians and keeps their count
-    base_n = {r["gaussians"] for r in rows if r["point"] == "base"}
-    assert {r["gaussians"] for r in rows if r["point"] == "refine 4"} == base_n
+    # refinement starts from the pipeline's pruned Gaussians (reconstruct_pruned: its budget
+    # keeps the same ones with the scene-wide depth factor and without) and keeps their count
+    p = next(p for p in pts if p.label == "refine 4")
+    idx = pick_inputs(scene, p.views)
+    near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
+    imgs, cams = resize_views(scene.images[idx], [scene.cameras[i] for i in idx], p.size)
+    start = model.reconstruct_pruned(imgs, cams, near, far, budget=p.budget).gaussians
+    assert {r["gaussians"] for r in rows if r["point"] == "refine 4"} == {len(start)}
     enhanced = [r for r in rows if r["point"] == "base"]
     assert any(r["psnr"] != r["psnr_raw"] for r in enhanced)  # the improver changed something
     summary = pareto.summarise(rows)

@@ -189,6 +189,8 @@ def test_the_pipeline_scales_one_pass_views_but_not_what_it_refines(views, monke
     scaled = model.reconstruct_pruned(images, cams)
     assert calls == [len(cams)]
     torch.testing.assert_close(scaled.depths, plain.depths * 1.1)
+    assert len(scaled.gaussians) == len(plain.gaussians)  # the factor comes after the budget
+    assert torch.equal(scaled.view_index, plain.view_index)
     refined = model.reconstruct_refined(images, cams, steps=1)
     assert calls == [len(cams)] and len(refined.gaussians) == len(plain.gaussians)
     model.depth_sweep = DepthSweepOptions(scale_candidates=0)
