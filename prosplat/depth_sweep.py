@@ -284,7 +284,7 @@ def scale_search(
     depth lies a median 5 % too near on the test scenes, near-far scenes 74 %), and the local
     sweep cannot see that where its windows match nothing; rendering can, because each
     view's colours must land on the other views' pixels. On the test scenes the enhanced
-    views gain +0.12 / +0.08 / +0.02 dB at 64 / 128 / 256 px (BENCHMARKS.md, "A scene-wide
+    views gain +0.15 / +0.09 / +0.03 dB at 64 / 128 / 256 px (BENCHMARKS.md, "A scene-wide
     depth factor"). Refinement does not start from it (:meth:`prosplat.ProSplat.generate`'s
     ``depth_scale``): on the fox photos it refines 0.6 dB worse from the scaled depth.
 
