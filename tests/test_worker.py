@@ -282,6 +282,27 @@ def test_cancelled_progress_stops_before_any_output(scene, tmp_path: Path) -> No
     assert list(tmp_path.iterdir()) == []
 
 
+def test_reconstruct_refines_from_the_depth_without_the_scene_wide_factor(scene, monkeypatch):
+    """A plain reconstruction asks for the depth sweep's scene-wide factor; a refining one
+    does not (refinement fits the inputs better from the local sweep's depth)."""
+    from prosplat.pipeline import ProSplat
+
+    folder, cams = scene
+    params = {"frames": _frames(folder, cams, [0, 2]), "device": "cpu", "near": 0.5, "far": 10.0}
+    asked: list[bool] = []
+    real = ProSplat.reconstruct_pruned
+
+    def spy(self, *args, **kwargs):
+        asked.append(kwargs.get("depth_scale", True))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(ProSplat, "reconstruct_pruned", spy)
+    run_task("reconstruct", params)
+    run_task("reconstruct", {**params, "refine_steps": 2})
+    run_task("reconstruct", {**params, "refine_seconds": 0.2})
+    assert asked == [True, False, False]
+
+
 def test_reconstruct_refines_with_progress_and_esc_mid_refinement(scene, tmp_path: Path) -> None:
     folder, cams = scene
     params = {"frames": _frames(folder, cams, [0, 2]), "device": "cpu", "near": 0.5, "far": 10.0}
