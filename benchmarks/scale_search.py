@@ -1,10 +1,11 @@
 """The depth sweep's scene-wide factor (``DepthSweepOptions.scale_candidates``) on and off,
 paired target by target.
 
-For every scene and size the pipeline reconstructs twice from the same inputs: with the
-shipped depth sweep (local ZNCC sweep, then the scene-wide factor of
-:func:`prosplat.depth_sweep.scale_search`) and with the factor search off
-(``scale_candidates=0``). Each target is scored raw and enhanced and, with
+For every scene and size the pipeline reconstructs twice from the same inputs
+(``ProSplat.reconstruct_pruned``): with the shipped depth sweep (local ZNCC sweep, then the
+scene-wide factor of :func:`prosplat.depth_sweep.scale_search`) and without the factor
+(``depth_scale=False``); the two keep the same Gaussians, so the factor chosen is the ratio
+of their depths. Each target is scored raw and enhanced and, with
 ``--refine-steps N``, after N steps of refinement from each variant's own Gaussians and
 enhanced (what refining from the scaled depth would give: the pipeline itself refines
 without the factor, ``depth_scale=False``); the table gives both means
@@ -24,14 +25,11 @@ import random
 import statistics as st
 import time
 from collections import defaultdict
-from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 from prosplat.data import find_scenes, load_scene
-from prosplat.data.scene import resize_views
-from prosplat.depth_sweep import DepthSweepOptions, scale_search
 from prosplat.evaluate import scene_at
 from prosplat.metrics import lpips, psnr
 from prosplat.pipeline import ProSplat
@@ -72,8 +70,8 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     model = ProSplat.from_pretrained(args.weights, improve=True)
-    on = model.depth_sweep or DepthSweepOptions()
-    variants = {"off": replace(on, scale_candidates=0), "on": on}
+    if model.depth_sweep is None:
+        raise SystemExit("these weights run without the depth sweep; nothing to compare")
     rows = ["raw", "enhanced"] + (
         [f"refine {args.refine_steps} enhanced"] * bool(args.refine_steps)
     )
@@ -91,10 +89,12 @@ def main() -> None:
             targets = scene.target_indices
             t_images = r.images[targets]
             t_cams = [r.cameras[i] for i in targets]
-            for name, options in variants.items():
-                model.depth_sweep = options
-                pruned = model.reconstruct_pruned(images, cams, r.near, r.far)
-                g = pruned.gaussians
+            depths = {}
+            for name in ("off", "on"):
+                pruned = model.reconstruct_pruned(
+                    images, cams, r.near, r.far, depth_scale=name == "on"
+                )
+                g, depths[name] = pruned.gaussians, pruned.depths
                 runs = [("raw", g, False), ("enhanced", g, True)]
                 if args.refine_steps:
                     fitted = refine(
@@ -109,10 +109,9 @@ def main() -> None:
                 for row, gg, enh in runs:
                     for p, lp in score_targets(model, gg, images, cams, t_images, t_cams, enh):
                         scores[size, row, name].append((kind, p, lp))
-            model.depth_sweep = variants["off"]
-            out, gen_cams = model.generate(images, cams, r.near, r.far)
-            gen_images = resize_views(images, cams, out.depths.shape[-2])[0]
-            factor, _ = scale_search(out, gen_images, gen_cams, on)
+            # the same Gaussians either way, the "on" depth scaled by the factor it chose
+            has_depth = depths["off"] > 0
+            factor = float((depths["on"][has_depth] / depths["off"][has_depth]).median())
             factors[size].append((folder.name, factor))
         print(f"{folder.name}: factors " + ", ".join(
             f"{s} px {f[-1][1]:.3f}" for s, f in factors.items()), flush=True)  # fmt: skip
