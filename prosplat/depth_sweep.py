@@ -94,6 +94,11 @@ class DepthSweepOptions:
     scale_candidates: int = 9
     scale_height: int = 64
 
+    def searches_scale(self, n_views: int) -> bool:
+        """Whether :func:`scale_search` looks for a scene-wide factor with ``n_views`` inputs
+        (at least 2 candidates and :attr:`min_views` views, as the local sweep)."""
+        return self.scale_candidates >= 2 and n_views >= self.min_views
+
     def check(self) -> None:
         if not (math.isfinite(self.span) and 0 < self.span <= 2):
             raise ValueError(f"DepthSweepOptions.span must be in (0, 2], got {self.span}")
@@ -247,7 +252,7 @@ def snap_output(
     images = images.to(depths.device)
     new, _ = sweep_depths(images, cameras, depths.detach(), options)
     out = slide_along_rays(out, cameras, new)
-    if options.scale_candidates >= 2 and len(cameras) >= options.min_views:
+    if options.searches_scale(len(cameras)):
         from prosplat.budget import prune_pixel_aligned
 
         # scored on what the pipeline keeps: one copy of each surface seen by several views
@@ -274,7 +279,8 @@ def scale_search(
     input camera is rendered from all of them at most ``scale_height`` high (from every
     stride-th pixel's Gaussian, grown by the stride: what a render that small can show),
     and the mean photometric loss against the inputs (refinement's L1 + SSIM) scores f.
-    Ties go to the factor nearest 1. ``keep`` [N] bool: only these Gaussians are rendered
+    Ties go to the factor nearest 1; with the search off (fewer than 2 candidates, or fewer
+    than ``min_views`` views) the factor is 1. ``keep`` [N] bool: only these Gaussians are rendered
     (the budget's survivors, :func:`prosplat.budget.prune_pixel_aligned`; None: all). With
     every view's copy of a surface kept, each view's own copy covers its pixels whatever the
     factor and the renders say less (on the 8 validation scenes at 64 px, +0.06 dB enhanced
@@ -297,10 +303,9 @@ def scale_search(
 
     options = DepthSweepOptions() if options is None else options
     options.check()
-    k = int(options.scale_candidates)
-    if k < 2:
-        return 1.0, [(1.0, math.nan)]
     v, _, h, w = images.shape
+    if not options.searches_scale(v):
+        return 1.0, [(1.0, math.nan)]
     if len(cameras) != v:
         raise ValueError(f"one camera per image: got {len(cameras)} cameras for {v} images")
     if tuple(out.depths.shape[-2:]) != (h, w):
@@ -325,6 +330,7 @@ def scale_search(
     g = Gaussians(g.means, g.quats, g.scales * stride, g.opacities, g.sh)
     view_index = torch.div(idx, h * w, rounding_mode="floor")  # [M] each one's own view
     backend = "cpu-fused" if g.means.device.type == "cpu" else "auto"
+    k = int(options.scale_candidates)
     logs = torch.linspace(-options.scale_span, options.scale_span, k, dtype=torch.float64)
     scored = []
     for log_f in logs.tolist():

@@ -572,13 +572,13 @@ class ProSplat:
         v, h, w = depths.shape
         view_index = torch.arange(v, device=keep.device).repeat_interleave(h * w)[keep]
         t2 = time.perf_counter()
-        options = self.depth_sweep
-        if depth_scale and options is not None and options.scale_candidates >= 2:
+        if depth_scale and self.depth_sweep is not None and self.depth_sweep.searches_scale(v):
             from prosplat.depth_sweep import scale_search, slide_gaussians
 
-            if v >= options.min_views:
-                gen_images = gen_images.to(self.device)
-                factor, _ = scale_search(out, gen_images, gen_cameras, options, keep=keep)
+            factor, _ = scale_search(
+                out, gen_images.to(self.device), gen_cameras, self.depth_sweep, keep=keep
+            )
+            if factor != 1.0:
                 g = slide_gaussians(g, view_index, gen_cameras, factor)
                 depths = depths * factor
         # the search is part of the depth sweep: its seconds count as the generator's
