@@ -57,6 +57,9 @@ VARIANTS: dict[str, RefineOptions] = {
     "colour lr x3": RefineOptions.unregularised(
         lr=replace(RefineOptions().lr, sh=RefineOptions().lr.sh * 3)
     ),
+    "ray 0.003": RefineOptions.unregularised(ray_scale_lr=0.003),
+    "ray 0.01": RefineOptions.unregularised(ray_scale_lr=0.01),
+    "ray 0.03": RefineOptions.unregularised(ray_scale_lr=0.03),
     "means fixed": RefineOptions.unregularised(freeze_means_steps=10**9),
     "opacity 0.1": RefineOptions.unregularised(opacity_weight=0.1),
     "cross 0.3": RefineOptions.unregularised(cross_view_weight=0.3),
@@ -103,15 +106,20 @@ def sweep(args) -> None:
         sc = load_scene(folder)
         imgs, cams, near, far, timgs, tcams = scene_inputs(sc, args.views, args.size)
         # 0: the generator at --size (this benchmark's default); N: at most N px high
-        pruned = model.reconstruct_pruned(
-            imgs, cams, near, far, generator_height=args.generator_size or 0
+        # the one-pass rows as the pipeline runs them (with the depth sweep's scene-wide
+        # factor); refinement starts without it, as ProSplat.reconstruct_refined does
+        one_pass, pruned = (
+            model.reconstruct_pruned(
+                imgs, cams, near, far, generator_height=args.generator_size or 0, depth_scale=on
+            )
+            for on in (True, False)
         )
         g, depths, view_index = pruned.gaussians, pruned.depths_for(imgs), pruned.view_index
         for key, kw in (("pasted reference", dict(enhance=False, paste=True)),):
             for m, v in score(model, g, imgs, cams, timgs, tcams, **kw).items():
                 rows[key, False][m].append(v)
         for enh in (False, True):
-            for m, v in score(model, g, imgs, cams, timgs, tcams, enh).items():
+            for m, v in score(model, one_pass.gaussians, imgs, cams, timgs, tcams, enh).items():
                 rows["generator", enh][m].append(v)
         plan = [(name, n, None) for name in names for n in steps]
         plan += [(name, n, None) for name in ablations for n in ablation_steps]

@@ -101,6 +101,14 @@ class RefineOptions:
             where their depth puts them, so this term is the multi-view photometric match
             that moves geometry. Needs ``view_index`` (which input view predicted each
             Gaussian); 0 or no ``view_index`` turns it off.
+        ray_scale_lr: Adam rate of one log-factor for the whole scene's depth, fitted with
+            the Gaussians: every Gaussian slides along the ray from the camera of the view
+            that predicted it by that factor (its scales with it, so its own view renders as
+            before; :func:`prosplat.depth_sweep.slide_gaussians`), the rate decaying with the
+            position rate. A scene-wide depth error (the generator's depth lies a median 5 %
+            too near, BENCHMARKS.md "A scene-wide depth factor") is one coordinated move that
+            per-Gaussian position steps, made for 30,000 steps, do not make in a few hundred.
+            Needs ``view_index``; 0 or no ``view_index`` turns it off.
         sh_degree: SH degree fitted: an int 0-3, or ``"auto"`` (:func:`sh_degree_for_views`:
             raised only when the views allow). Bands above the Gaussians' own start at zero.
         background: RGB behind the Gaussians (default black, as the generator renders).
@@ -128,6 +136,7 @@ class RefineOptions:
     scale_weight: float = 0.0
     freeze_means_steps: int = 0
     cross_view_weight: float = 0.0
+    ray_scale_lr: float = 0.0
     sh_degree: int | str = "auto"
     background: tuple[float, float, float] | None = None
     cull: bool = False
@@ -148,7 +157,7 @@ class RefineOptions:
 
     def check(self) -> None:
         names = ("ssim_weight", "depth_weight", "opacity_weight", "scale_weight")
-        for name in (*names, "cross_view_weight"):
+        for name in (*names, "cross_view_weight", "ray_scale_lr"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"RefineOptions.{name} must be a finite number >= 0, got {value}")
@@ -179,7 +188,8 @@ class RefineStats:
     before each step's update), ``initial_loss`` the same for the first pass;
     ``loss_history``: the photometric loss of every step; ``cancelled``: the cancel hook
     stopped the loop; ``n_gaussians`` (unchanged by refinement), ``sh_degree`` fitted,
-    ``scene_extent`` (scales the position learning rate).
+    ``scene_extent`` (scales the position learning rate), ``depth_factor`` (the scene-wide
+    factor fitted, :attr:`RefineOptions.ray_scale_lr`; 1 when off).
     :meth:`prosplat.ProSplat.reconstruct_refined` adds ``generator_s``, ``prune_s`` (seconds)
     and ``pruned_from`` (the generator's count before the budget).
     """
@@ -198,6 +208,8 @@ class RefineStats:
     generator_s: float | None = None
     prune_s: float | None = None
     pruned_from: int | None = None
+    # the scene-wide depth factor fitted (RefineOptions.ray_scale_lr; 1: none)
+    depth_factor: float = 1.0
 
 
 @dataclass
@@ -283,7 +295,7 @@ class GaussianParams(torch.nn.Module):
 
 
 @torch.no_grad()
-def may_touch(params: GaussianParams, camera: Camera) -> Tensor:
+def may_touch(params: GaussianParams | Gaussians, camera: Camera) -> Tensor:
     """Indices of the Gaussians whose pixel box in ``camera`` may be non-empty: a superset of
     what :func:`prosplat.render.project_gaussians` marks valid, from the means, the largest
     scale and the opacity alone (no rotation, no covariance), so it costs a few ops per
@@ -296,14 +308,18 @@ def may_touch(params: GaussianParams, camera: Camera) -> Tensor:
     front of the near plane, at least 1/255 opaque, and its bounded box meets the image.
     """
     f64 = torch.float64
+    if isinstance(params, Gaussians):  # already activated (e.g. slid along the rays)
+        o = params.opacities.detach().to(f64)
+        s_max = params.scales.detach().to(f64).amax(dim=1)
+    else:
+        o = torch.sigmoid(params.logit_opacities.detach().to(f64))
+        s_max = torch.exp(params.log_scales.detach().to(f64).amax(dim=1))
     m = params.means.detach().to(f64).T  # [3,N]
     pc = (
         camera.R.to(device=m.device, dtype=f64) @ m
         + camera.t.to(device=m.device, dtype=f64)[:, None]
     )
     x, y, z = pc
-    o = torch.sigmoid(params.logit_opacities.detach().to(f64))
-    s_max = torch.exp(params.log_scales.detach().to(f64).amax(dim=1))
     keep = (z >= NEAR_PLANE) & (o >= MIN_ALPHA)
     z_safe = torch.where(keep, z, torch.ones_like(z))
     r2 = 2.0 * torch.log((255.0 * o).clamp_min(1.0))
@@ -468,6 +484,12 @@ def refine(
     if view_index is not None and options.cross_view_weight > 0:
         vi = view_index.to(device)
         others = [torch.nonzero(vi != i).squeeze(1) for i in range(v)]
+    ray = None  # (the scene's log depth factor [1], each Gaussian's camera centre [N,3])
+    if view_index is not None and options.ray_scale_lr > 0:
+        log_f = torch.zeros(1, dtype=dtype, device=device, requires_grad=True)
+        opt.add_param_group({"params": [log_f], "lr": options.ray_scale_lr})
+        centres = torch.stack([c.center for c in cameras]).to(device=device, dtype=dtype)
+        ray = (log_f, centres[view_index.to(device)])
     backend = "cpu-fused" if options.fused_projection and device.type == "cpu" else "auto"
     gen = torch.Generator().manual_seed(int(seed))
     order: list[int] = []
@@ -489,14 +511,16 @@ def refine(
             break
         frac = step / max(int(steps) - 1, 1) if steps is not None else min(elapsed / seconds, 1.0)
         opt.param_groups[0]["lr"] = lr_means * options.lr.means_final_ratio**frac
+        if ray is not None:
+            opt.param_groups[-1]["lr"] = options.ray_scale_lr * options.lr.means_final_ratio**frac
         if step == freeze and freeze:
             params.means.requires_grad_(True)
         if not order:  # every view once per pass, in a seeded order
             order = torch.randperm(v, generator=gen).tolist()
         i = order.pop()
-        g = params.gaussians()
+        g = _slid(params.gaussians(), ray)
         if options.cull:  # only what can touch view i: the same image, less projection work
-            sub = may_touch(params, cameras[i])
+            sub = may_touch(g if ray is not None else params, cameras[i])
             out = render(g[sub], cameras[i], bg, backend)
         else:
             out = render(g, cameras[i], bg, backend)
@@ -531,7 +555,7 @@ def refine(
             progress(step, None if steps is None else int(steps), history[-1])
     seconds_run = time.perf_counter() - t0
     with torch.no_grad():
-        result = params.gaussians().detach()
+        result = _slid(params.gaussians(), ray).detach()
     k = min(v, len(history))
     stats = RefineStats(
         steps=step,
@@ -544,8 +568,19 @@ def refine(
         n_gaussians=len(result),
         sh_degree=degree,
         scene_extent=extent,
+        depth_factor=1.0 if ray is None else float(torch.exp(ray[0].detach())),
     )
     return RefineResult(result, stats)
+
+
+def _slid(g: Gaussians, ray) -> Gaussians:
+    """``g`` slid along each Gaussian's own camera ray by the scene's factor (``ray``: the
+    loop's (log factor [1], camera centre [N,3]); None: ``g`` itself)."""
+    if ray is None:
+        return g
+    log_f, c = ray
+    f = torch.exp(log_f)  # [1]
+    return Gaussians(c + f * (g.means - c), g.quats, g.scales * f, g.opacities, g.sh)
 
 
 def check_refine_args(steps: list[int] | int, seconds: list[float] | float | None) -> None:

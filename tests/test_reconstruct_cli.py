@@ -15,7 +15,7 @@ from prosplat import ProSplat, read_ply
 from prosplat.cli import build_parser
 from prosplat.convert.distortion import Distortion
 from prosplat.convert.nerfstudio import read_transforms
-from prosplat.evaluate_posed import ROWS, PosedCase, score_cases
+from prosplat.evaluate_posed import ROWS, PosedCase, input_sets, score_cases
 from prosplat.image_io import read_image
 from prosplat.metrics import psnr
 from prosplat.posed_views import load_posed_set, pick_views
@@ -222,6 +222,38 @@ def test_eval_posed_scores_the_rows_and_shows_them(colmap_text, tmp_path, capsys
     assert list(by) == list(ROWS)
     assert by["refined"]["recon_s"] > 0 and by["refined"]["gaussians"] > 0
     assert read_image(out / "views.png").shape == (3, 32, 9 * 34 - 2)
+
+
+def test_eval_posed_input_sets_scores_each_choice_and_their_mean(tmp_path, capsys):
+    """--input-sets 3: three different choices of 2 inputs among 6 frames, the first the
+    default one; every choice's held-out frames are scored (its own inputs never are), the
+    summary's means are over all of them, and summary.md has one column per choice."""
+    cams = scene_cameras(6, 32, 32)
+    posed_file = write_transforms_set(tmp_path / "set", cams)
+    posed = load_posed_set(posed_file)
+    sets = input_sets(posed, pick_views(posed, None, 2), 3)
+    assert len(sets) == 3 and len({tuple(s) for s in sets}) == 3
+    assert sets[0] == sorted(pick_views(posed, None, 2))
+    out = tmp_path / "eval"
+    assert cli("eval", "posed", posed_file, "--out", out, "--size", "32", "--num-inputs", "2",
+               "--targets", "2", "--input-sets", "3") == 0  # fmt: skip
+    printed = capsys.readouterr().out
+    rows = list(csv.DictReader(open(out / "scores.csv")))
+    cases = sorted({r["scene"] for r in rows})
+    assert cases == ["set set 0", "set set 1", "set set 2"]
+    paste = [float(r["psnr"]) for r in rows if r["method"] == "paste"]
+    assert len(paste) == 3 * 2  # 2 targets per choice
+    summary = json.loads((out / "scores.json").read_text())["summary"]
+    by = {s["method"]: s for s in summary}
+    assert by["paste"]["psnr"] == pytest.approx(sum(paste) / len(paste), rel=1e-6)
+    md = (out / "summary.md").read_text()
+    assert "| method | set set 0 | set set 1 | set set 2 |" in md
+    assert "set set 2: inputs" in printed
+    with pytest.raises(ValueError, match="drop --inputs"):
+        input_sets(posed, [0, 1], 2, fixed=True)
+    with pytest.raises(ValueError, match=">= 1"):
+        input_sets(posed, [0, 1], 0)
+    assert input_sets(posed, [1, 0], 1) == [[0, 1]]
 
 
 def test_score_cases_flat_and_paste_rows():
