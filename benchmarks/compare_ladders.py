@@ -14,6 +14,14 @@ one run pair too (the same file as A and B):
 
     python benchmarks/compare_ladders.py L.json L.json --rows "refine 100 enhanced" \\
         --against enhanced
+
+``prosplat eval posed``'s ``scores.json`` pairs the same way (its methods are the rows, its
+targets matched by order within each case; the "size" column is blank). With
+``--input-sets`` each case is one choice of inputs, and the interval resamples whole cases
+(its targets share their inputs, so they are not independent draws):
+
+    python benchmarks/compare_ladders.py runs/eval_v7/fox/scores.json \\
+        runs/eval_v8/fox/scores.json --rows enhanced "refined enhanced"
 """
 
 from __future__ import annotations
@@ -27,7 +35,20 @@ from prosplat.ladder.stats import bootstrap_ci
 
 
 def _scores(path: Path) -> dict[tuple, dict]:
-    scores = json.loads(path.read_text())["scores"]
+    """(size, views, row, scene, target) -> score, from a ladder.json or an eval posed
+    scores.json (size "", the target's order within its case, the case as its type)."""
+    data = json.loads(path.read_text())
+    if "targets" in data:  # prosplat eval posed
+        seen: dict[tuple, int] = defaultdict(int)
+        out = {}
+        for s in data["targets"]:
+            case = (s["views"], s["method"], s["scene"])
+            out[("", s["views"], s["method"], s["scene"], seen[case])] = s | {
+                "scene_type": s["scene"]
+            }
+            seen[case] += 1
+        return out
+    scores = data["scores"]
     return {(s["size"], s["views"], s["rung"], s["scene"], s["target"]): s for s in scores}
 
 
@@ -61,8 +82,10 @@ def main(argv: list[str] | None = None) -> None:
     by_type: dict[tuple, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for (size, views, row), keys in groups.items():
         d_psnr = [b[k]["psnr"] - a[k]["psnr"] for k in keys]
-        dp = bootstrap_ci(d_psnr)
-        dl = bootstrap_ci([b[k]["lpips"] - a[k]["lpips"] for k in keys])
+        # eval posed's cases are choices of inputs: resample them whole
+        clusters = [k[3] for k in keys] if size == "" else None
+        dp = bootstrap_ci(d_psnr, clusters=clusters)
+        dl = bootstrap_ci([b[k]["lpips"] - a[k]["lpips"] for k in keys], clusters=clusters)
         print(
             f"| {size} | {views} | {row} | {len(keys)} | {_mean(a, keys, 'psnr'):.2f} / "
             f"{_mean(a, keys, 'lpips'):.3f} | {_mean(b, keys, 'psnr'):.2f} / "

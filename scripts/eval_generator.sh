@@ -8,11 +8,14 @@
 #   ladder256  the same at 256 px on data/test256
 #   views    flicker along 24-frame paths and re-rendered input cameras at 64 and 128 px
 #            (benchmarks/enhance_views.py --inputs-too)
-#   fox      real photos: refine 300 + enhance at 64 px (prosplat eval posed; needs
-#            data/outside/fox from scripts/outside_data.sh)
+#   fox      real photos: refine 300 + enhance at 64 and 128 px over 7 choices of 4 inputs
+#            (prosplat eval posed --input-sets 7: one choice can swing a generator's result
+#            by 0.7 dB; needs data/outside/fox from scripts/outside_data.sh)
 # Data: scripts/render_v2_data.sh test (data/test128, data/test256). Stage 2: the shipped one.
 # Pair two names' ladders with benchmarks/compare_ladders.py runs/eval_A/ladder/ladder.json
-# runs/eval_B/ladder/ladder.json (a part run again writes ladder-2/, never over the first).
+# runs/eval_B/ladder/ladder.json (a part run again writes ladder-2/, never over the first),
+# and their fox runs with compare_ladders.py runs/eval_A/fox64/scores.json
+# runs/eval_B/fox64/scores.json (whole choices of inputs resampled).
 #   scripts/eval_generator.sh NAME WEIGHTS PART...     e.g.
 #   scripts/eval_generator.sh v7 runs/generator_v7.safetensors depth ladder
 set -euo pipefail
@@ -46,8 +49,10 @@ for part in "$@"; do
       --working-sizes -1 --flicker-frames 24 --inputs-too --generator "$weights" \
       --out "$out/views" > "$log" 2>&1 ;;
   fox)
-    $P eval posed data/outside/fox --skip-missing --size 64 --num-inputs 4 --targets 16 \
-      --refine-steps 300 --weights "$weights" --out "$out/fox" > "$log" 2>&1 ;;
+    for size in 64 128; do
+      $P eval posed data/outside/fox --skip-missing --size $size --num-inputs 4 --targets 16 \
+        --input-sets 7 --refine-steps 300 --weights "$weights" --out "$out/fox$size"
+    done > "$log" 2>&1 ;;
   *) echo "eval_generator.sh: unknown part $part (depth ladder ladder256 views fox)" >&2; exit 1 ;;
   esac
 done

@@ -69,3 +69,28 @@ def test_against_pairs_two_rows_of_one_run(tmp_path: Path, capsys) -> None:
     assert "+2.00 [+2.00, +2.00]" in lines["enhanced"]
     assert "+2.50 [+2.50, +2.50]" in lines["refine 100 enhanced"]
     assert "16.50 / 0.300" in lines["enhanced"]  # A is the paste's own score
+
+
+def test_pairs_eval_posed_scores_by_case_and_order(tmp_path: Path, capsys) -> None:
+    """eval posed's scores.json (methods as rows, targets in order within each case): B is
+    +1 dB on case "fox set 1" only. The interval resamples whole cases, so with one case
+    gaining and one not it spans both (0 to +1), where resampling targets would not."""
+
+    def posed(path: Path, gain: float) -> Path:
+        targets = [
+            dict(method=m, views=4, kind="held-out", scene=case, psnr=15.0 + t + gain * (k == 1),
+                 lpips=0.2)
+            for m in ("paste", "refined enhanced")
+            for k, case in enumerate(("fox set 0", "fox set 1"))
+            for t in range(5)
+        ]  # fmt: skip
+        path.write_text(json.dumps({"summary": [], "targets": targets}))
+        return path
+
+    a, b = posed(tmp_path / "a.json", 0.0), posed(tmp_path / "b.json", 1.0)
+    _module().main([str(a), str(b), "--rows", "refined enhanced"])
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("|  | 4 | refined enhanced"))
+    assert "| 10 |" in row and "+0.50 [+0.00, +1.00]" in row
+    per_case = out.splitlines()[-1]
+    assert per_case.split("|")[4:6] == [" +0.00 ", " +1.00 "]
