@@ -114,6 +114,8 @@ def sweep(args) -> None:
             )
             for on in (True, False)
         )
+        if args.scaled_start:  # refine from the one-pass Gaussians, scene-wide factor applied
+            pruned = one_pass
         g, depths, view_index = pruned.gaussians, pruned.depths_for(imgs), pruned.view_index
         for key, kw in (("pasted reference", dict(enhance=False, paste=True)),):
             for m, v in score(model, g, imgs, cams, timgs, tcams, **kw).items():
@@ -220,6 +222,12 @@ def main() -> None:
     ap.add_argument("--steps", default="50,100,300")
     ap.add_argument("--seconds", default="", help="time budgets (s) run for each variant")
     ap.add_argument("--variants", default=None, help=f"comma-separated of {list(VARIANTS)}")
+    ap.add_argument(
+        "--scaled-start",
+        action="store_true",
+        help="refine from the one-pass Gaussians (the depth sweep's scene-wide factor applied) "
+        "instead of from the local sweep's depth, as the pipeline refines",
+    )
     ap.add_argument("--ablations", default="", help="variants run only at --ablation-steps")
     ap.add_argument("--ablation-steps", default="100")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
