@@ -144,6 +144,24 @@ def test_generator_v8_default_scenes_are_v7s(root: Path) -> None:
     assert not (root / "data" / "gen_v6").exists()
 
 
+def test_generator_v9_starts_from_v8_with_v8s_recipe(root: Path) -> None:
+    """v9 runs v8's script from the shipped v8 (runs/generator_v8.safetensors, kept when
+    present) into runs/gen_v9 with batch seed 3."""
+    (root / "runs").mkdir(exist_ok=True)
+    (root / "runs" / "generator_v8.safetensors").write_bytes(b"")  # shipped_before keeps it
+    r = _run_script(
+        root, "train_generator_v9.sh", {"SCENES": "10000-10001", "SUBSET": "data/sub9"}, "12"
+    )
+    assert r.returncode == 0, r.stderr
+    args = r.stdout.split()
+    assert args[args.index("--init") + 1] == "runs/generator_v8.safetensors"
+    assert args[args.index("--out") + 1] == "runs/gen_v9"
+    assert args[args.index("--seed") + 1] == "3"
+    assert args[args.index("--steps") + 1] == "12"
+    assert args[args.index("--ema") + 1] == "0.998"
+    assert args[args.index("--data") + 1] == "data/sub9"
+
+
 @pytest.mark.parametrize("arm, fill", [("fill", True), ("ctrl", False)])
 def test_stage2_v16_arms_differ_only_by_the_fill(root: Path, arm: str, fill: bool) -> None:
     """ARM=fill fine-tunes v13 with --fill, ARM=ctrl the same without it: same sets, same
