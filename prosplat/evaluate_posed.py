@@ -16,6 +16,10 @@ PSNR / SSIM / LPIPS (:mod:`prosplat.metrics`):
   shows what refinement buys on the user's own images (the ladder's rows, on data no
   ProSplat scene generator made).
 
+``--input-sets K`` repeats all of it for K choices of input views (:func:`input_sets`) and
+reports the mean over every choice's targets, with a column per choice in ``summary.md``
+(:func:`per_set_table`): one choice of inputs is one sample.
+
 ``views.png`` shows the first targets side by side (ground truth, then each row's image), so
 the numbers can be checked by eye.
 
