@@ -250,10 +250,9 @@ def test_culling_is_bitwise_its_slow_twin(scene):
     assert fast.stats.loss_history == slow.stats.loss_history
     # with the scene-wide depth factor the cull is taken on the slid Gaussians
     view_index = torch.arange(2).repeat_interleave(len(scene["start"]) // 2)
+    ray = [RefineOptions(cull=c, ray_scale_lr=0.03) for c in (True, False)]
     fast, slow = (
-        refine(scene["start"], images, cams, steps=8, view_index=view_index,
-               options=RefineOptions(cull=c, ray_scale_lr=0.03))  # fmt: skip
-        for c in (True, False)
+        refine(scene["start"], images, cams, steps=8, view_index=view_index, options=o) for o in ray
     )
     assert fast.stats.loss_history == slow.stats.loss_history
     assert fast.stats.depth_factor == slow.stats.depth_factor != 1.0
