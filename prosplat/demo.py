@@ -256,8 +256,11 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         cfg.weights, generator=cfg.generator, improve=cfg.improve or True
     )
     t0 = time.perf_counter()
-    # the generator at the demo's size, then the depth sweep the pipeline runs by default
-    recon, _ = model.generate(in_images, in_cams, near, far, height=0)
+    # the generator at the demo's size, then the depth sweep the pipeline runs by default;
+    # Gaussians that will be refined start without its scene-wide factor, as the pipeline's
+    # (ProSplat.reconstruct_refined: refinement fits the inputs better from there)
+    refining = bool(cfg.refine_steps or cfg.refine_seconds is not None)
+    recon, _ = model.generate(in_images, in_cams, near, far, height=0, depth_scale=not refining)
     t_recon = time.perf_counter() - t0
     g_all, depths = recon.gaussians(0), recon.depths[0]
     t0 = time.perf_counter()
@@ -269,7 +272,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         f"{stats['kept']:,} ({t_prune:.2f} s)"
     )
     t_refine = 0.0
-    if cfg.refine_steps or cfg.refine_seconds is not None:
+    if refining:
         gaussians, t_refine = _refine(cfg, gaussians, in_images, in_cams, depths)
     write_ply(gaussians, out / "gaussians.ply")
 

@@ -92,3 +92,31 @@ def test_demo_bad_arguments_exit_2(tmp_path, capsys, bad, message):
     assert e.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("refine_steps", [0, 3])
+def test_demo_refines_without_the_scene_wide_factor(first_run, tmp_path, monkeypatch, refine_steps):
+    """The demo asks the generator for the depth sweep's scene-wide factor only when it does not
+    refine: refinement starts from the local sweep's depth, as everywhere else in the pipeline
+    (ProSplat.reconstruct_refined). Blender is replaced by a copy of the first run's scene."""
+    import shutil
+
+    import prosplat.demo as demo
+    from prosplat.pipeline import ProSplat
+
+    asked: list[bool] = []
+    generate = ProSplat.generate
+
+    def spy(self, *args, **kwargs):
+        asked.append(kwargs.get("depth_scale", True))
+        return generate(self, *args, **kwargs)
+
+    def scene_copy(cfg, dest, blend):
+        shutil.copytree(first_run.scene_folder, dest)
+        return dest
+
+    monkeypatch.setattr(ProSplat, "generate", spy)
+    monkeypatch.setattr(demo, "render_scene_with_blender", scene_copy)
+    res = run_demo(DemoConfig(out=tmp_path / "d", refine_steps=refine_steps, **TINY))
+    assert asked[0] is (refine_steps == 0)
+    assert (res.timings["refine"] > 0) == bool(refine_steps)
