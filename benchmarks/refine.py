@@ -108,14 +108,15 @@ def sweep(args) -> None:
         # 0: the generator at --size (this benchmark's default); N: at most N px high
         # the one-pass rows as the pipeline runs them (with the depth sweep's scene-wide
         # factor); refinement starts without it, as ProSplat.reconstruct_refined does
-        one_pass, pruned = (
-            model.reconstruct_pruned(
-                imgs, cams, near, far, generator_height=args.generator_size or 0, depth_scale=on
+        height = args.generator_size or 0
+        one_pass = model.reconstruct_pruned(imgs, cams, near, far, generator_height=height)
+        pruned = (  # --scaled-start: refine from the one-pass Gaussians, factor applied
+            one_pass
+            if args.scaled_start
+            else model.reconstruct_pruned(
+                imgs, cams, near, far, generator_height=height, depth_scale=False
             )
-            for on in (True, False)
         )
-        if args.scaled_start:  # refine from the one-pass Gaussians, scene-wide factor applied
-            pruned = one_pass
         g, depths, view_index = pruned.gaussians, pruned.depths_for(imgs), pruned.view_index
         for key, kw in (("pasted reference", dict(enhance=False, paste=True)),):
             for m, v in score(model, g, imgs, cams, timgs, tcams, **kw).items():

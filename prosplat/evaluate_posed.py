@@ -206,7 +206,7 @@ def input_sets(posed, inputs: list[int], count: int, fixed: bool = False) -> lis
         raise ValueError(f"--input-sets must be an integer >= 1, got {count!r}")
     if count > 1 and fixed:
         raise ValueError("--input-sets picks its own inputs; drop --inputs (or --input-sets)")
-    sets = [sorted(inputs)]
+    sets = [list(inputs)]  # as picked (an --inputs order is kept)
     n = len(posed.views)
     centres = torch.stack([v.camera.center.double() for v in posed.views])
     for k in range(1, count * 4):  # more starts than asked, in case some repeat
@@ -214,7 +214,7 @@ def input_sets(posed, inputs: list[int], count: int, fixed: bool = False) -> lis
             break
         first = (k * n) // count if k < count else (k * n) // (count * 4) % n
         chosen = sorted(farthest_point_sampling(centres, len(inputs), first=first))
-        if chosen not in sets:
+        if all(chosen != sorted(s) for s in sets):
             sets.append(chosen)
     return sets
 

@@ -484,12 +484,19 @@ def refine(
     if view_index is not None and options.cross_view_weight > 0:
         vi = view_index.to(device)
         others = [torch.nonzero(vi != i).squeeze(1) for i in range(v)]
-    ray = None  # (the scene's log depth factor [1], each Gaussian's camera centre [N,3])
+    # depth_sweep imports prosplat.baselines, which imports this module: import it here
+    from prosplat.depth_sweep import slide_gaussians
+
+    log_f = None  # the scene's log depth factor [1] (RefineOptions.ray_scale_lr)
     if view_index is not None and options.ray_scale_lr > 0:
         log_f = torch.zeros(1, dtype=dtype, device=device, requires_grad=True)
         opt.add_param_group({"params": [log_f], "lr": options.ray_scale_lr})
-        centres = torch.stack([c.center for c in cameras]).to(device=device, dtype=dtype)
-        ray = (log_f, centres[view_index.to(device)])
+
+    def current() -> Gaussians:
+        """The fitted Gaussians, slid along their rays by the scene's factor when fitted."""
+        g = params.gaussians()
+        return g if log_f is None else slide_gaussians(g, view_index, cameras, log_f.exp())
+
     backend = "cpu-fused" if options.fused_projection and device.type == "cpu" else "auto"
     gen = torch.Generator().manual_seed(int(seed))
     order: list[int] = []
@@ -511,16 +518,16 @@ def refine(
             break
         frac = step / max(int(steps) - 1, 1) if steps is not None else min(elapsed / seconds, 1.0)
         opt.param_groups[0]["lr"] = lr_means * options.lr.means_final_ratio**frac
-        if ray is not None:
+        if log_f is not None:
             opt.param_groups[-1]["lr"] = options.ray_scale_lr * options.lr.means_final_ratio**frac
         if step == freeze and freeze:
             params.means.requires_grad_(True)
         if not order:  # every view once per pass, in a seeded order
             order = torch.randperm(v, generator=gen).tolist()
         i = order.pop()
-        g = _slid(params.gaussians(), ray)
+        g = current()
         if options.cull:  # only what can touch view i: the same image, less projection work
-            sub = may_touch(g if ray is not None else params, cameras[i])
+            sub = may_touch(g if log_f is not None else params, cameras[i])
             out = render(g[sub], cameras[i], bg, backend)
         else:
             out = render(g, cameras[i], bg, backend)
@@ -555,7 +562,7 @@ def refine(
             progress(step, None if steps is None else int(steps), history[-1])
     seconds_run = time.perf_counter() - t0
     with torch.no_grad():
-        result = _slid(params.gaussians(), ray).detach()
+        result = current().detach()
     k = min(v, len(history))
     stats = RefineStats(
         steps=step,
@@ -568,19 +575,9 @@ def refine(
         n_gaussians=len(result),
         sh_degree=degree,
         scene_extent=extent,
-        depth_factor=1.0 if ray is None else float(torch.exp(ray[0].detach())),
+        depth_factor=1.0 if log_f is None else float(log_f.detach().exp()),
     )
     return RefineResult(result, stats)
-
-
-def _slid(g: Gaussians, ray) -> Gaussians:
-    """``g`` slid along each Gaussian's own camera ray by the scene's factor (``ray``: the
-    loop's (log factor [1], camera centre [N,3]); None: ``g`` itself)."""
-    if ray is None:
-        return g
-    log_f, c = ray
-    f = torch.exp(log_f)  # [1]
-    return Gaussians(c + f * (g.means - c), g.quats, g.scales * f, g.opacities, g.sh)
 
 
 def check_refine_args(steps: list[int] | int, seconds: list[float] | float | None) -> None:

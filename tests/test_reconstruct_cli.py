@@ -253,7 +253,10 @@ def test_eval_posed_input_sets_scores_each_choice_and_their_mean(tmp_path, capsy
         input_sets(posed, [0, 1], 2, fixed=True)
     with pytest.raises(ValueError, match=">= 1"):
         input_sets(posed, [0, 1], 0)
-    assert input_sets(posed, [1, 0], 1) == [[0, 1]]
+    assert input_sets(posed, [1, 0], 1) == [[1, 0]]  # the inputs as given, in their order
+    # farthest-point sampling from frame 3 (the second choice's start) picks frames 0 and 3:
+    # given as [3, 0] they are the same choice in another order, so it is skipped
+    assert input_sets(posed, [3, 0], 2) == [[3, 0], [1, 5]]
 
 
 def test_score_cases_flat_and_paste_rows():
