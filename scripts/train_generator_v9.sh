@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Generator v9 candidate: the shipped v8 fine-tuned for STEPS more steps with v8's recipe
+# Generator v9 (shipped at this run's step 3,500, BENCHMARKS "Generator v9"; re-running goes on
+# toward STEPS, the next candidate): v8 fine-tuned for STEPS more steps with v8's recipe
 # (scripts/train_generator_v8.sh: v7's losses, 64 and 128 px, half of the 128-px steps on
 # windows of other shapes, a weight average of decay 0.998) and a new batch seed (3). v8 is
 # taken from the commit that shipped it (4e61949), so a fresh clone starts from the right
