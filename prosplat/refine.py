@@ -109,6 +109,14 @@ class RefineOptions:
             too near, BENCHMARKS.md "A scene-wide depth factor") is one coordinated move that
             per-Gaussian position steps, made for 30,000 steps, do not make in a few hundred.
             Needs ``view_index``; 0 or no ``view_index`` turns it off.
+        drop_rate: each step renders a random fraction ``1 - drop_rate`` of the Gaussians
+            (each dropped independently), their opacities divided by ``1 - drop_rate``
+            (capped below 1, :func:`drop_gaussians`) so the image keeps its coverage:
+            DropGaussian (Park et al., CVPR 2025). With 2-6 views every Gaussian is fitted to
+            few pixels; dropping its neighbours makes each one explain its pixels on its own
+            instead of a few front Gaussians absorbing every view's error, the overfitting
+            novel views pay for. The final Gaussians are all kept, at their fitted
+            opacities. 0 turns it off.
         sh_degree: SH degree fitted: an int 0-3, or ``"auto"`` (:func:`sh_degree_for_views`:
             raised only when the views allow). Bands above the Gaussians' own start at zero.
         background: RGB behind the Gaussians (default black, as the generator renders).
@@ -137,6 +145,7 @@ class RefineOptions:
     freeze_means_steps: int = 0
     cross_view_weight: float = 0.0
     ray_scale_lr: float = 0.0
+    drop_rate: float = 0.0
     sh_degree: int | str = "auto"
     background: tuple[float, float, float] | None = None
     cull: bool = False
@@ -161,6 +170,8 @@ class RefineOptions:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"RefineOptions.{name} must be a finite number >= 0, got {value}")
+        if not (isinstance(self.drop_rate, (int, float)) and 0 <= self.drop_rate < 1):
+            raise ValueError(f"RefineOptions.drop_rate must be in [0, 1), got {self.drop_rate}")
         if self.ssim_weight > 1:
             raise ValueError(f"RefineOptions.ssim_weight must be in [0, 1], got {self.ssim_weight}")
         if int(self.freeze_means_steps) != self.freeze_means_steps or self.freeze_means_steps < 0:
@@ -336,6 +347,24 @@ def may_touch(params: GaussianParams | Gaussians, camera: Camera) -> Tensor:
     return torch.nonzero(keep).squeeze(1)
 
 
+def drop_gaussians(g: Gaussians, rate: float, generator: torch.Generator) -> Gaussians:
+    """A random subset of ``g``, each Gaussian dropped with probability ``rate`` and the kept
+    ones' opacities divided by ``1 - rate``: the expected coverage is kept
+    (:attr:`RefineOptions.drop_rate`). Gradients flow to the kept Gaussians' parameters.
+
+    The scaled opacity is capped just below 1 (the rasterizer takes opacities in [0, 1] and
+    caps alpha at 0.99 anyway) with a straight-through gradient: the capped ones are the
+    generator's most opaque Gaussians (a third of them above 0.8), and a plain clamp would
+    freeze their opacity on every step they are kept."""
+    keep = torch.rand(len(g), generator=generator) >= rate  # [N] on the CPU, as the seed is
+    keep = keep.to(g.device)
+    sub = g[keep]
+    scaled = sub.opacities / (1.0 - rate)  # [K]
+    capped = scaled.clamp(max=1.0 - 1e-6)
+    opacities = scaled + (capped - scaled).detach()  # the value capped, the gradient scaled's
+    return Gaussians(sub.means, sub.quats, sub.scales, opacities, sub.sh)
+
+
 def check_images(images: Tensor, cameras: Sequence[Camera], what: str = "refine") -> None:
     """[V,3,H,W] finite images in [0, 1], one Camera of that size each, H, W >= 11 (SSIM)."""
     if not isinstance(images, Tensor) or images.ndim != 4 or images.shape[1] != 3:
@@ -499,6 +528,7 @@ def refine(
 
     backend = "cpu-fused" if options.fused_projection and device.type == "cpu" else "auto"
     gen = torch.Generator().manual_seed(int(seed))
+    drop_gen = torch.Generator().manual_seed(int(seed) + 1)  # apart: order stays as without
     order: list[int] = []
     history: list[float] = []
     cancelled = False
@@ -526,8 +556,11 @@ def refine(
             order = torch.randperm(v, generator=gen).tolist()
         i = order.pop()
         g = current()
+        if options.drop_rate > 0:
+            g = drop_gaussians(g, options.drop_rate, drop_gen)
         if options.cull:  # only what can touch view i: the same image, less projection work
-            sub = may_touch(g if log_f is not None else params, cameras[i])
+            moved = log_f is not None or options.drop_rate > 0  # g is not params' own set
+            sub = may_touch(g if moved else params, cameras[i])
             out = render(g[sub], cameras[i], bg, backend)
         else:
             out = render(g, cameras[i], bg, backend)

@@ -15,6 +15,7 @@ from prosplat.metrics import psnr, ssim
 from prosplat.refine import (
     LearningRates,
     RefineOptions,
+    drop_gaussians,
     photometric_loss,
     refine,
     sh_degree_for_views,
@@ -184,6 +185,53 @@ def test_freeze_means_keeps_positions_for_the_first_steps(scene):
         scene["start"], images, cams, steps=4, options=RefineOptions(freeze_means_steps=2)
     )
     assert not torch.equal(moved.gaussians.means, scene["start"].means)
+
+
+def test_drop_gaussians_keeps_the_expected_coverage(scene):
+    """DropGaussian: about 1 - rate of the Gaussians are kept, each the same Gaussian with its
+    opacity divided by 1 - rate (capped below 1, the gradient passing through the cap), so the
+    mean coverage of a view is kept; the
+    same generator seed drops the same ones, and gradients reach the kept parameters."""
+    g = scene["start"]
+    rate = 0.3
+    sub = drop_gaussians(g, rate, torch.Generator().manual_seed(5))
+    again = drop_gaussians(g, rate, torch.Generator().manual_seed(5))
+    other = drop_gaussians(g, rate, torch.Generator().manual_seed(6))
+    assert torch.equal(sub.means, again.means) and not torch.equal(sub.means, other.means)
+    n = len(g)
+    assert abs(len(sub) - (1 - rate) * n) < 4 * math.sqrt(rate * (1 - rate) * n), (len(sub), n)
+    keep = (g.means[:, None, :] == sub.means[None]).all(-1).any(1)  # [N] kept in g
+    assert int(keep.sum()) == len(sub)
+    expected = (g.opacities[keep] / (1 - rate)).clamp(max=1 - 1e-6)
+    assert torch.allclose(sub.opacities, expected)
+    assert torch.equal(sub.sh, g.sh[keep]) and torch.equal(sub.scales, g.scales[keep])
+    sub.validate()  # opacities stay in [0, 1]
+    # the expected alpha of a view is about kept: the mean over many draws against the full set
+    cam = scene["cams"][INPUTS[0]]
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        full = render(g, cam).alpha
+        mean = sum(render(drop_gaussians(g, 0.1, gen), cam).alpha for _ in range(8)) / 8
+    assert float((mean - full).abs().mean()) < 0.05
+    opacities = g.opacities.detach().clone().requires_grad_(True)
+    leaf = Gaussians(g.means, g.quats, g.scales, opacities, g.sh)
+    render(drop_gaussians(leaf, rate, torch.Generator().manual_seed(5)), cam).rgb.sum().backward()
+    grad = opacities.grad  # [N]: zero where dropped; reaches the kept, the capped ones too
+    capped = keep & (g.opacities / (1 - rate) > 1)
+    assert bool((grad[~keep] == 0).all()) and bool((grad[capped] != 0).float().mean() > 0.5)
+
+
+def test_refine_with_dropped_gaussians_is_seeded_and_keeps_every_gaussian(scene):
+    images, cams = inputs(scene)
+    opts = RefineOptions.unregularised(drop_rate=0.2)
+    a, b = (refine(scene["start"], images, cams, steps=8, seed=3, options=opts) for _ in "ab")
+    plain = refine(scene["start"], images, cams, steps=8, seed=3)
+    assert len(a.gaussians) == len(scene["start"])  # dropping is per step; nothing is lost
+    assert torch.equal(a.gaussians.sh, b.gaussians.sh)
+    assert not torch.equal(a.gaussians.sh, plain.gaussians.sh)
+    assert a.stats.final_loss < a.stats.initial_loss
+    with pytest.raises(ValueError, match="drop_rate"):
+        refine(scene["start"], images, cams, steps=1, options=RefineOptions(drop_rate=1.0))
 
 
 def test_opacity_and_scale_terms_pull_their_way(scene):
