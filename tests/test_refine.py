@@ -380,3 +380,29 @@ def test_ray_scale_undoes_a_scene_wide_depth_error(scene, error):
     assert torch.equal(no_index.gaussians.means, plain.gaussians.means)
     with pytest.raises(ValueError, match="ray_scale_lr"):
         refine(start, images, cams, steps=1, options=RefineOptions(ray_scale_lr=-1.0))
+
+
+def test_a_diverging_fit_stops_with_a_clear_error(scene):
+    """The loop renders without re-validating its own Gaussians every step (they are valid by
+    construction), so a fit that blows up must be caught by its loss instead."""
+    images, cams = inputs(scene)
+    wild = RefineOptions.unregularised(lr=replace(LearningRates(), scale=1e6, means=1e6))
+    with pytest.raises(ValueError, match="diverged"):
+        refine(scene["start"], images, cams, steps=20, options=wild)
+
+
+def test_trusted_gaussians_skip_the_check_and_subsets_stay_equal(scene):
+    g = scene["start"]
+    bad = g.opacities.clone()
+    bad[0] = 2.0
+    with pytest.raises(ValueError, match="opacities"):
+        Gaussians(g.means, g.quats, g.scales, bad, g.sh)
+    t = Gaussians.trusted(g.means, g.quats, g.scales, bad, g.sh)  # no check: the caller's word
+    with pytest.raises(ValueError, match="opacities"):
+        t.validate()
+    with pytest.raises(ValueError, match="opacities"):
+        render(t, scene["cams"][0])  # render still checks by default
+    idx = torch.tensor([3, 1, 4])
+    sub = g[idx]
+    for name, value in sub.tensors().items():
+        assert torch.equal(value, getattr(g, name)[idx]), name

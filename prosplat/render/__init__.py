@@ -55,7 +55,12 @@ def _gsplat_available(device: torch.device) -> bool:
 
 
 def render(
-    gaussians: Gaussians, camera: Camera, background: Tensor | None = None, backend: str = "auto"
+    gaussians: Gaussians,
+    camera: Camera,
+    background: Tensor | None = None,
+    backend: str = "auto",
+    *,
+    check: bool = True,
 ) -> RenderOutput:
     """Render ``gaussians`` from ``camera``; differentiable w.r.t. every Gaussian parameter.
 
@@ -65,12 +70,16 @@ def render(
         background: [3] RGB behind the Gaussians (default black).
         backend: "auto", "cpu", "cpu-fused" (the CPU path with the projection as one C++
             kernel, :mod:`prosplat.render.fused`, checked against "cpu") or "gsplat".
+        check: validate the Gaussians first (:meth:`Gaussians.validate`). False only in
+            loops whose Gaussians are valid by construction and that watch their own loss
+            for NaN (refinement): the check reads every value, every render.
     """
     if not isinstance(gaussians, Gaussians):
         raise ValueError(f"render expects prosplat.Gaussians, got {type(gaussians).__name__}")
     if not isinstance(camera, Camera):
         raise ValueError(f"render expects a prosplat.Camera, got {type(camera).__name__}")
-    gaussians.validate()
+    if check:
+        gaussians.validate()
     bg = _background(background, gaussians.means)
     if backend == "auto":
         backend = "gsplat" if _gsplat_available(gaussians.device) else "cpu"
