@@ -117,8 +117,9 @@ class Gaussians:
         For inner loops only: a subset of valid Gaussians, or parameters through their
         activations (``exp`` scales, ``sigmoid`` opacities). Validation reads every value
         (3.5 ms for 60,000 Gaussians); a refinement step built and checked the same
-        Gaussians up to four times, about 13 % of a step at 128 px. Anything from outside
-        (a file, a user, a network) goes through the checked constructor.
+        Gaussians up to four times (skipping it made a step 1.03-1.04x faster, BENCHMARKS
+        "Refinement: dropping Gaussians"). Anything from outside (a file, a user, a
+        network) goes through the checked constructor, and ``render`` checks by default.
         """
         g = cls.__new__(cls)
         g.means, g.quats, g.scales, g.opacities, g.sh = means, quats, scales, opacities, sh

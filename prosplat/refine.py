@@ -140,7 +140,7 @@ class RefineOptions:
     # The defaults are what the measurements on target views support (README, "Refinement";
     # BENCHMARKS.md): with the shipped generator every loss term tried lost PSNR or was
     # neutral, so all are off; dropping 10 % of the Gaussians per step raises the raw
-    # targets +0.17 / +0.20 dB at 128 / 64 px (100 steps) and leaves the enhanced ones level
+    # targets +0.17 / +0.22 dB at 128 / 64 px (100 steps) and leaves the enhanced ones level
     # (BENCHMARKS "Refinement: dropping Gaussians"); the SH degree follows the view count.
     depth_weight: float = 0.0
     opacity_weight: float = 0.0
