@@ -179,8 +179,10 @@ class Gaussians:
             if not -len(self) <= index < len(self):  # a slice would silently give an empty set
                 raise IndexError(f"Gaussian index {index} out of range for {len(self)} Gaussians")
             index = slice(index, index + 1 if index != -1 else None)
-        # a subset of valid Gaussians is valid: no second check
-        return Gaussians.trusted(*(getattr(self, f.name)[index] for f in fields(self)))
+        parts = [getattr(self, f.name)[index] for f in fields(self)]
+        if parts[0].ndim == 2:  # a subset of valid Gaussians is valid: no second read of them
+            return Gaussians.trusted(*parts)
+        return Gaussians(*parts)  # e.g. a 2-D index: the checked constructor names the shape
 
     @property
     def sh_degree(self) -> int:

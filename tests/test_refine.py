@@ -190,8 +190,8 @@ def test_freeze_means_keeps_positions_for_the_first_steps(scene):
 def test_drop_gaussians_keeps_the_expected_coverage(scene):
     """DropGaussian: about 1 - rate of the Gaussians are kept, each the same Gaussian with its
     opacity divided by 1 - rate (capped below 1, the gradient passing through the cap), so the
-    mean coverage of a view is kept; the
-    same generator seed drops the same ones, and gradients reach the kept parameters."""
+    mean coverage of a view is kept; the same generator seed drops the same ones, and
+    gradients reach the kept parameters."""
     g = scene["start"]
     rate = 0.3
     sub = drop_gaussians(g, rate, torch.Generator().manual_seed(5))
@@ -406,3 +406,5 @@ def test_trusted_gaussians_skip_the_check_and_subsets_stay_equal(scene):
     sub = g[idx]
     for name, value in sub.tensors().items():
         assert torch.equal(value, getattr(g, name)[idx]), name
+    with pytest.raises(ValueError, match="means must have shape"):
+        g[torch.tensor([[0, 1]])]  # not a subset: still checked
