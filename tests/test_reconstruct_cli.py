@@ -279,6 +279,19 @@ def test_score_cases_flat_and_paste_rows():
     assert by["generator"].psnr < 100 and by["generator"].gaussians > 0
 
 
+def test_score_cases_refines_the_budgeted_gaussians():
+    """``budget`` prunes the refined rows' Gaussians as it prunes the generator's (it was
+    dropped for refinement before 2026-11-26, so ``--budget`` changed only some rows)."""
+    torch.manual_seed(0)
+    model = ProSplat()
+    cams = scene_cameras(2, 32, 32)
+    images = torch.rand(2, 3, 32, 32)
+    case = PosedCase(images, cams, images[:1], cams[:1], 1.0, 10.0, "unit")
+    rows = score_cases(model, [case], budget=500, reconstruct_kwargs={"refine_steps": 2})
+    by = {r.method: r for r in rows}
+    assert by["generator"].gaussians == by["refined"].gaussians <= 500
+
+
 def test_render_a_camera_path(colmap_text, tmp_path):
     """--render PATH.json renders the cameras of another transforms file (e.g. exported from
     Blender), at the model resolution."""
