@@ -399,6 +399,54 @@ def test_zero_baseline_cost_volume_is_flat_and_finite():
     assert torch.allclose(cost, same_pixel.expand_as(cost), atol=1e-4)
 
 
+def test_cost_volume_matches_a_candidate_by_candidate_reference():
+    """The vectorised correlation (all candidates warped at once, multiplied and summed over
+    channels) against one grid_sample and one dot product per view, neighbour and candidate:
+    the same volume and the same feature gradients."""
+    import torch.nn.functional as F
+
+    torch.manual_seed(5)
+    cams = [Camera.look_at((0.3 * i, 0.1 * i, 0.0), (0.0, 0.0, 4.0), (0, -1, 0), 12.0, 10, 8)
+            for i in range(3)]  # fmt: skip
+    K = torch.stack([c.K for c in cams]).float()[None]
+    w2c = torch.stack([c.world_to_cam for c in cams]).float()[None]
+    cands = inverse_depth_candidates(torch.tensor([1.0]), torch.tensor([20.0]), 5)
+    nbrs = nearest_views(w2c, 2)
+    feats = torch.randn(1, 3, 6, 8, 10, requires_grad=True)
+    cost = plane_sweep_cost_volume(feats, K, w2c, cands, nbrs)  # [1,3,5,8,10]
+    ref = torch.zeros_like(cost)
+    for n in range(2):
+        grid = warp_grid(K, w2c, nbrs[..., n], cands, 8, 10)  # [1,3,5,8,10,2]
+        for i in range(3):
+            j = int(nbrs[0, i, n])
+            for d in range(5):
+                warped = F.grid_sample(feats[:, j], grid[:, i, d], align_corners=False)
+                ref[0, i, d] += (feats[0, i] * warped[0]).sum(0) / (2 * math.sqrt(6))
+    assert torch.allclose(cost, ref, atol=1e-5)
+    g = torch.randn_like(cost)
+    (ours,) = torch.autograd.grad(cost, feats, g)
+    (theirs,) = torch.autograd.grad(ref, feats, g)
+    assert torch.allclose(ours, theirs, atol=1e-5)
+
+
+def test_cost_volume_benchmark_times_the_same_volume():
+    """benchmarks/cost_volume.py's einsum version (the code before 2026-11-26) computes what
+    the shipped one does, so its timings compare like with like."""
+    from benchmark_scripts import load_benchmark
+
+    bench = load_benchmark("cost_volume")
+    torch.manual_seed(2)
+    cams = [Camera.look_at((0.4 * i, 0.0, 0.0), (0.0, 0.0, 5.0), (0, -1, 0), 10.0, 8, 8)
+            for i in range(3)]  # fmt: skip
+    K = torch.stack([c.K for c in cams]).float()[None]
+    w2c = torch.stack([c.world_to_cam for c in cams]).float()[None]
+    cands = inverse_depth_candidates(torch.tensor([1.0]), torch.tensor([20.0]), 4)
+    feats = torch.randn(1, 3, 5, 8, 8)
+    args = (feats, K, w2c, cands, nearest_views(w2c, 2))
+    assert torch.allclose(bench.einsum_cost_volume(*args), plane_sweep_cost_volume(*args),
+                          atol=1e-5)  # fmt: skip
+
+
 def test_inverse_depth_candidates_and_nearest_views():
     c = inverse_depth_candidates(torch.tensor([1.0]), torch.tensor([1e4]), 5)[0]
     assert c[0] == pytest.approx(1.0) and c[-1] == pytest.approx(1e4, rel=1e-4)

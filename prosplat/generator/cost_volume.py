@@ -134,5 +134,9 @@ def plane_sweep_cost_volume(
             padding_mode="zeros",
             align_corners=False,
         ).view(b, v, c, d, h, w)  # [B,V,C,D,h,w]
-        cost = cost + torch.einsum("bvchw,bvcdhw->bvdhw", feats, warped)
+        # multiply and sum over C, not einsum: einsum contracts through bmm over per-pixel
+        # 1xC @ CxD products, which first copies the warped volume into a pixel-major layout;
+        # that copy and its backward were a third of a training step's generator time at
+        # 128 px (BENCHMARKS "The cost volume's correlation"), this is about 2x faster
+        cost = cost + (feats.unsqueeze(3) * warped).sum(2)
     return cost / (k * math.sqrt(c))  # [B,V,D,h,w]
