@@ -86,11 +86,11 @@ def _same_as_library(capture_dir: Path, obj) -> None:
     )  # the generator, its depth sweep and the budget, as the worker runs them
     got = read_arrays(obj)["position"]
     assert got.shape[0] == len(want)
-    # The two paths read the same scene a little differently (the cameras from Blender's
-    # objects or from transforms.json; the worker's torch thread count), and the depth sweep
-    # can carry a last-bit difference into a few 1e-4 moves: all but 0.1 % of the coordinates
-    # agree to 1e-4 and none is off by 1e-3. A glue error (a camera convention, the view
-    # order, near/far) moves every Gaussian by far more.
+    # The two paths do not read the scene bit for bit alike (the add-on takes the cameras
+    # from Blender's objects, the library from transforms.json), and the depth sweep can turn
+    # a last-bit difference into a move of a few 1e-4: all but 0.1 % of the coordinates agree
+    # to 1e-4 and none is off by 1e-3. A glue error (a camera convention, the view order,
+    # near/far) moves every Gaussian by far more.
     err = np.abs(got - want.means.numpy()) - 1e-4 * np.abs(want.means.numpy())
     assert (err > 1e-4).mean() < 1e-3 and err.max() < 1e-3, (float((err > 1e-4).mean()), err.max())
 
