@@ -8,7 +8,8 @@ generator's time in that copy. The multiply-and-sum reads both tensors in their 
 
 Part 1 times the op alone at the training shapes (forward + backward). Part 2 runs the same
 fixed training batches (`benchmarks/generator_step.py`) with each correlation swapped into
-the generator, interleaved so both see the same machine load; medians over ``--repeats``.
+the cost volume (``prosplat.generator.cost_volume.correlate``), interleaved so both see the
+same machine load; medians over ``--repeats``.
 
     OMP_NUM_THREADS=1 python benchmarks/cost_volume.py --data data/val128 --steps 10
 """
@@ -16,18 +17,15 @@ the generator, interleaved so both see the same machine load; medians over ``--r
 from __future__ import annotations
 
 import argparse
-import math
 import statistics
 import sys
 import time
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
-import prosplat.generator.model as generator_model
-from prosplat.generator.cost_volume import warp_grid
+import prosplat.generator.cost_volume as cost_volume
 
 #: (B, V, C, D, h, w) of the volumes a training step correlates: the coarse volume of 4 views
 #: at 128 px (64 px features), the fine one (48 candidates at 32 px), 6 views at 64 px
@@ -36,29 +34,6 @@ SHAPES = ((1, 4, 32, 16, 64, 64), (1, 4, 32, 48, 32, 32), (1, 6, 32, 16, 32, 32)
 
 def einsum_correlation(feats: Tensor, warped: Tensor) -> Tensor:
     return torch.einsum("bvchw,bvcdhw->bvdhw", feats, warped)
-
-
-def summed_correlation(feats: Tensor, warped: Tensor) -> Tensor:
-    return (feats.unsqueeze(3) * warped).sum(2)
-
-
-def einsum_cost_volume(
-    feats: Tensor, K: Tensor, w2c: Tensor, depths: Tensor, neighbours: Tensor
-) -> Tensor:
-    """:func:`prosplat.generator.cost_volume.plane_sweep_cost_volume` as it was, with einsum."""
-    b, v, c, h, w = feats.shape
-    d = depths.shape[1]
-    bidx = torch.arange(b, device=feats.device)[:, None]
-    cost = feats.new_zeros(b, v, d, h, w)
-    k = neighbours.shape[-1]
-    for n in range(k):
-        nbr = neighbours[..., n]
-        grid = warp_grid(K, w2c, nbr, depths, h, w).to(feats.dtype)
-        src = feats[bidx, nbr].reshape(b * v, c, h, w)
-        warped = F.grid_sample(src, grid.reshape(b * v, d * h, w, 2), mode="bilinear",
-                               padding_mode="zeros", align_corners=False).view(b, v, c, d, h, w)  # fmt: skip
-        cost = cost + einsum_correlation(feats, warped)
-    return cost / (k * math.sqrt(c))
 
 
 def time_op(repeats: int) -> None:
@@ -71,7 +46,7 @@ def time_op(repeats: int) -> None:
         grad = torch.randn(b, v, d, h, w)
         times: dict[str, list[float]] = {"einsum": [], "sum": []}
         for _ in range(repeats):
-            for name, fn in (("einsum", einsum_correlation), ("sum", summed_correlation)):
+            for name, fn in (("einsum", einsum_correlation), ("sum", cost_volume.correlate)):
                 t0 = time.perf_counter()
                 fn(feats, warped).backward(grad)
                 times[name].append(time.perf_counter() - t0)
@@ -89,7 +64,7 @@ def time_steps(data: str, sizes: list[int], steps: int, repeats: int) -> None:
 
     lpips_fn = LPIPS()
     model = ProSplat.from_pretrained().generator.train()
-    shipped = generator_model.plane_sweep_cost_volume
+    shipped = cost_volume.correlate
     print("| inputs px | correlation | forward ms | loss ms | backward ms | step ms |")
     print("|---:|---|---:|---:|---:|---:|")
     for size in sizes:
@@ -101,12 +76,12 @@ def time_steps(data: str, sizes: list[int], steps: int, repeats: int) -> None:
         rounds: dict[str, list[dict]] = {"einsum": [], "multiply-and-sum": []}
         try:
             for _ in range(repeats):
-                for name, fn in (("einsum", einsum_cost_volume), ("multiply-and-sum", shipped)):
-                    generator_model.plane_sweep_cost_volume = fn
+                for name, fn in (("einsum", einsum_correlation), ("multiply-and-sum", shipped)):
+                    cost_volume.correlate = fn  # looked up by plane_sweep_cost_volume per call
                     parts = [step(model, batch, cfg, lpips_fn, "cpu-fused") for batch in fixed]
                     rounds[name].append({k: statistics.mean(p[k] for p in parts) for k in parts[0]})
         finally:
-            generator_model.plane_sweep_cost_volume = shipped
+            cost_volume.correlate = shipped
         for name, r in rounds.items():
             med = {k: statistics.median(x[k] for x in r) * 1e3 for k in r[0]}
             print(f"| {size} | {name} | {med['forward']:.0f} | {med['loss']:.0f} | "
