@@ -22,6 +22,12 @@
 #   earlier call curated: give another WORK= when GENERATOR or SETS change between calls.
 # What comes back in $OUT: improve.safetensors, log.jsonl, the curation and training logs (a
 # training run stopped by the time limit still saves improve.safetensors at the step reached).
+# Costs measured on a lent H200 (16 cores, 144 scenes, SHARDS=16, 2026-11-26): curating raw64
+# (2/4 inputs), raw128 (4), ref64 (2/4, 100 steps) and ref128 (4, 100 steps) took 298 s, the
+# ref128 shards alone about 3.5 min for 9 scenes each, leaving a 555-s call 135 s of training
+# (0.104 s a step at batch 16). A second call reuses the curated sets only while the machine is
+# still warm (30 s after the first returns): have its command ready, and leave room in the
+# 64-MiB carry for the INIT file it brings.
 # Usage (repository root, on the GPU machine):
 #   scripts/gpu_train_stage2.sh SECONDS [prosplat train improve options ...]
 # Dry run elsewhere: PY=.venv/bin/python DEVICE=cpu PACKS=a.npz SHARDS=2 MIN_STEPS=2 OUT=/tmp/o
