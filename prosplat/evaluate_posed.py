@@ -123,8 +123,9 @@ def score_cases(
         recons = [("generator", "enhanced", pruned.gaussians, time.perf_counter() - t0)]
         if reconstruct_kwargs:
             t0 = time.perf_counter()
-            g = model.reconstruct(images, cams, case.near, case.far, budget=budget,
-                                  **reconstruct_kwargs)  # the same budget as the generator's
+            g = model.reconstruct(
+                images, cams, case.near, case.far, budget=budget, **reconstruct_kwargs
+            )  # the same budget as the generator's
             recons.append(("refined", "refined enhanced", g.detach(), time.perf_counter() - t0))
         for gt, cam in zip(case.target_images, case.target_cameras, strict=True):
             t1 = time.perf_counter()
