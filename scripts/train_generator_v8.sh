@@ -7,6 +7,7 @@
 #   EMA (default 0.998)      : decay of the weight average; 0 saves the raw weights
 # ~1 s a step on one thread. Resumable: re-run to go on (the run folder keeps its state); a
 # run started without EMA takes it up from where it resumes.
+# EXTRA_ARGS: more `train generator` flags, after the recipe's (so they override it).
 # SCENES / SUBSET pass through to train_generator_v6.sh (another set of data/train128's seeds),
 # e.g. the first 3 render rounds: SCENES="10000-10179 $(. scripts/scene_subset.sh; hard_rounds 3)".
 #   OUT=runs/gen_v8 [INIT=...] [SEED=2] [FRAME_PROB=0.5] [EMA=0.998] [SCENES=... SUBSET=...] \
@@ -17,5 +18,5 @@ INIT=${INIT:-runs/generator_v7.safetensors}
 . scripts/shipped_before.sh
 shipped_before "$INIT" generator_tiny.safetensors fca9402  # generator v7
 GROW_ALEXNET=0 INIT="$INIT" OUT="${OUT:-runs/gen_v8}" SEED="${SEED:-2}" \
-  EXTRA_ARGS="--frame-prob ${FRAME_PROB:-0.5} --ema ${EMA:-0.998}" \
+  EXTRA_ARGS="--frame-prob ${FRAME_PROB:-0.5} --ema ${EMA:-0.998} ${EXTRA_ARGS:-}" \
   exec scripts/train_generator_v6.sh "${1:-5000}"
