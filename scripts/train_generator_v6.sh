@@ -16,12 +16,16 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
-INIT=${INIT:-runs/generator_v5.safetensors}
 GROW_ALEXNET=${GROW_ALEXNET:-3}
 OUT=${OUT:-runs/gen_v6a}
 . scripts/shipped_before.sh
 . scripts/scene_subset.sh
-shipped_before "$INIT" generator_tiny.safetensors 9665e28  # generator v5
+# the default start is fetched from git history; an INIT the caller names must exist (train
+# generator says so), never silently replaced by these weights
+if [ -z "${INIT:-}" ]; then
+  INIT=runs/generator_v5.safetensors
+  shipped_before "$INIT" generator_tiny.safetensors 9665e28  # generator v5
+fi
 SUBSET=${SUBSET:-data/gen_v6}
 scene_subset "$SUBSET" "${SCENES:-10000-10359 $(hard_rounds 5)}"
 grow=()

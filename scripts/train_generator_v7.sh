@@ -12,8 +12,12 @@
 #   OUT=runs/gen_v7 [INIT=...] [SEED=1] [LR=1.5e-4] [FRAME_PROB=0.5] scripts/train_generator_v7.sh [STEPS]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-INIT=${INIT:-runs/generator_v6.safetensors}
 . scripts/shipped_before.sh
-shipped_before "$INIT" generator_tiny.safetensors 8a5cc89  # generator v6
+# the default start is fetched from git history; an INIT the caller names must exist (train
+# generator says so), never silently replaced by these weights
+if [ -z "${INIT:-}" ]; then
+  INIT=runs/generator_v6.safetensors
+  shipped_before "$INIT" generator_tiny.safetensors 8a5cc89  # generator v6
+fi
 GROW_ALEXNET=0 INIT="$INIT" OUT="${OUT:-runs/gen_v7}" SEED="${SEED:-1}" \
   EXTRA_ARGS="--frame-prob ${FRAME_PROB:-0.5}" exec scripts/train_generator_v6.sh "${1:-5000}"

@@ -14,9 +14,13 @@
 #     scripts/train_generator_v8.sh [STEPS]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-INIT=${INIT:-runs/generator_v7.safetensors}
 . scripts/shipped_before.sh
-shipped_before "$INIT" generator_tiny.safetensors fca9402  # generator v7
+# the default start is fetched from git history; an INIT the caller names must exist (train
+# generator says so), never silently replaced by these weights
+if [ -z "${INIT:-}" ]; then
+  INIT=runs/generator_v7.safetensors
+  shipped_before "$INIT" generator_tiny.safetensors fca9402  # generator v7
+fi
 GROW_ALEXNET=0 INIT="$INIT" OUT="${OUT:-runs/gen_v8}" SEED="${SEED:-2}" \
   EXTRA_ARGS="--frame-prob ${FRAME_PROB:-0.5} --ema ${EMA:-0.998} ${EXTRA_ARGS:-}" \
   exec scripts/train_generator_v6.sh "${1:-5000}"
