@@ -25,22 +25,7 @@ version() { "$PY" -c "import importlib.metadata as m; print(m.version('$1'))"; }
   --platform manylinux_2_28_x86_64 --platform manylinux2014_x86_64 -d .whl \
   "diffusers==$(version diffusers)" "importlib_metadata==$(version importlib_metadata)" \
   "plyfile==$(version plyfile)"
-"$PY" - << 'EOF'
-from pathlib import Path
-
-from safetensors import safe_open
-from safetensors.torch import load_file, save_file
-
-from prosplat.paths import cache_dir
-
-src = cache_dir() / "lpips_alex_v0.1.safetensors"
-if not src.is_file():
-    raise SystemExit(f"no LPIPS weights at {src}: run `make setup` first")
-with safe_open(str(src), "pt") as f:
-    meta = f.metadata()
-dst = Path(".gpu/lpips_alex_v0.1.f16.safetensors")
-save_file({k: v.half() for k, v in load_file(str(src)).items()}, str(dst), metadata=meta)
-EOF
+"$PY" scripts/gpu_lpips.py pack .gpu
 . scripts/scene_subset.sh
 # shellcheck disable=SC2046  # hard_rounds prints seed ranges
 scene_subset data/gpu_s2_scenes "${SCENES:-10000-10135 $(hard_rounds 2)}"

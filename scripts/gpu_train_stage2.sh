@@ -46,15 +46,9 @@ mkdir -p "$OUT" "$W/cache" "$W/s2_sets" "$W/s2_logs"
 $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
   --target "$W/site" .whl/*.whl || exit 1
 export PYTHONPATH=$W/site:$PWD PROSPLAT_CACHE=$W/cache PYTHONUNBUFFERED=1
+$PY scripts/gpu_lpips.py unpack .gpu || exit 1
 $PY - <<'EOF' || exit 1
-import glob, os
-from safetensors import safe_open
-from safetensors.torch import load_file, save_file
-for src in glob.glob(".gpu/lpips_*.f16.safetensors"):
-    dst = os.path.join(os.environ["PROSPLAT_CACHE"], os.path.basename(src).replace(".f16", ""))
-    with safe_open(src, "pt") as f:
-        meta = f.metadata()
-    save_file({k: v.float() for k, v in load_file(src).items()}, dst, metadata=meta)
+import os
 from prosplat.render.native import load  # build the rasterizer once, not per shard
 load()
 import torch

@@ -61,6 +61,35 @@ def test_a_pack_without_depth_is_smaller_and_reads_the_same_images(scenes, pack,
     assert "input_depths" not in item and "target_depths" not in item
 
 
+def test_a_lower_jpeg_quality_packs_smaller_and_less_exact_images(scenes, pack, tmp_path):
+    folders = sorted(scenes.iterdir())
+    low = Pack(pack_scenes(folders, tmp_path / "q60.npz", depth=False, jpeg_quality=60))
+    bare = Pack(pack_scenes(folders, tmp_path / "q95.npz", depth=False))
+    assert low.path.stat().st_size < 0.8 * bare.path.stat().st_size
+    for i, folder in enumerate(folders):
+        png = load_scene(folder).images
+        fine = float(psnr(bare.scene(i).images, png).mean())
+        coarse = float(psnr(low.scene(i).images, png).mean())
+        assert 25 < coarse < fine - 2
+    for bad in (0, 96):
+        with pytest.raises(ValueError, match="jpeg_quality"):
+            pack_scenes(folders, tmp_path / f"q{bad}.npz", jpeg_quality=bad)
+
+
+def test_rounded_depth_packs_smaller_within_its_stated_error(scenes, pack, tmp_path):
+    folders = sorted(scenes.iterdir())
+    coarse = Pack(pack_scenes(folders, tmp_path / "d6.npz", depth_bits=6))
+    assert coarse.path.stat().st_size < Pack(pack).path.stat().st_size
+    for i, folder in enumerate(folders):
+        exact = load_scene(folder).depths
+        rel = (coarse.scene(i).depths - exact).abs() / exact.clamp_min(1e-6)
+        assert 2**-10 < float(rel[exact > 0].max()) <= 2**-7 + 2**-11  # 2^-(bits+1) + float16
+        assert torch.equal(coarse.scene(i).depths == 0, exact == 0)
+        assert torch.equal(coarse.scene(i).images, Pack(pack).scene(i).images)
+    with pytest.raises(ValueError, match="depth_bits"):
+        pack_scenes(folders, tmp_path / "d11.npz", depth_bits=11)
+
+
 def test_training_with_depth_terms_refuses_a_pack_without_depth(scenes, tmp_path):
     from prosplat.train.generator import train
 
@@ -213,7 +242,8 @@ def test_the_pack_command_splits_and_never_overwrites(scenes, tmp_path, capsys):
     with pytest.raises(FileExistsError):
         main(args)
     with pytest.raises(SystemExit) as done:
-        main([*args[:-2], "--max-mb", "1", "--no-depth", "--out", str(tmp_path / "bare")])
+        main([*args[:-2], "--max-mb", "1", "--no-depth", "--out", str(tmp_path / "bare"),
+              "--jpeg-quality", "80", "--depth-bits", "7"])  # fmt: skip
     assert done.value.code == 0
     (bare,) = tmp_path.glob("bare_*.npz")
     assert not Pack(bare).has_depth and len(Pack(bare)) == 3

@@ -85,6 +85,33 @@ def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
     assert torch.load(out / "state.pt", weights_only=True)["step"] == 5
 
 
+def test_an_interrupted_run_saves_the_step_reached_and_resumes(dataset, tmp_path, monkeypatch):
+    """Ctrl-C (or `timeout --signal=INT` on a time-boxed GPU call) between checkpoints keeps
+    the steps done: a checkpoint at the step reached, and the same command goes on from it."""
+    import prosplat.train.generator as gen
+
+    real, calls = gen.render_loss, []
+
+    def interrupt_at_step_4(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    out = tmp_path / "run"
+    cfg = TrainConfig(
+        data=str(dataset), out=str(out), steps=5, inputs=2, targets=1, lpips_weight=0.0,
+        log_every=1, save_every=10, warmup=1,
+    )  # fmt: skip
+    monkeypatch.setattr(gen, "render_loss", interrupt_at_step_4)
+    train(cfg, progress=False)
+    assert torch.load(out / "state.pt", weights_only=True)["step"] == 3  # none was due (10)
+    monkeypatch.setattr(gen, "render_loss", real)
+    train(cfg, progress=False)
+    steps = [json.loads(line)["step"] for line in (out / "log.jsonl").read_text().splitlines()]
+    assert steps == [1, 2, 3, 4, 5]
+
+
 def test_stop_at_takes_a_run_in_parts_with_the_same_result(dataset, tmp_path):
     """--stop-at 2 then the same run to its end gives the weights (and learning rates) of one
     uninterrupted run: the schedule follows --steps in both."""
@@ -444,6 +471,50 @@ def test_render_loss_fused_projection_matches_the_torch_projection(dataset):
     assert g0.keys() == g1.keys() and len(g0) > 50
     for name in g0:
         torch.testing.assert_close(g1[name], g0[name], rtol=1e-3, atol=1e-6, msg=name)
+
+
+def test_render_loss_is_the_mean_of_per_camera_losses(dataset):
+    """render_loss renders each group's cameras together (one gsplat call on a GPU); its
+    parts are still the per-camera means it documents, recomputed here camera by camera."""
+    from prosplat import render
+    from prosplat.metrics import LPIPS, ssim
+    from prosplat.train.generator import _model_inputs, batch_cameras, render_loss
+
+    torch.manual_seed(0)
+    model = ProSplat().generator.eval()
+    items = [SceneDataset(str(dataset), n_inputs=2, n_targets=2)[i] for i in range(2)]
+    batch = {k: torch.stack([it[k] for it in items]) for k in items[0]}
+    cfg = TrainConfig(
+        data="x", out="x", lpips_weight=0.3, ssim_weight=0.2, depth_weight=0.1,
+        depth_loss="log", input_render_weight=0.5,
+    )  # fmt: skip
+    lpips_fn = LPIPS()
+    with torch.no_grad():
+        output = model(*_model_inputs(batch))
+        loss, parts = render_loss(output, batch, cfg, lpips_fn=lpips_fn, cpu_backend="cpu")
+        want = dict.fromkeys(("mse", "lpips", "ssim", "depth", "input_mse"), 0.0)
+        for b in range(2):
+            g = output.gaussians(b)
+            for group, weight in (("target", 1.0), ("input", 0.5)):
+                images = batch[f"{group}_images"][b]
+                h, w = images.shape[-2:]
+                cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
+                for j, cam in enumerate(cams):
+                    out = render(g, cam, backend="cpu")
+                    mse = float(((out.rgb - images[j]) ** 2).mean())
+                    want["mse"] += weight * mse
+                    want["input_mse"] += mse if group == "input" else 0.0
+                    want["lpips"] += weight * float(lpips_fn(out.rgb, images[j]))
+                    want["ssim"] += weight * (1 - float(ssim(out.rgb, images[j])))
+                    gt_d = batch[f"{group}_depths"][b, j]
+                    valid = (gt_d > 0) & (out.alpha > 0.5)
+                    want["depth"] += weight * float(
+                        (out.depth[valid].clamp_min(1e-3).log() - gt_d[valid].log()).abs().mean()
+                    )
+    assert want["depth"] > 0 and want["input_mse"] > 0
+    for key in ("mse", "lpips", "ssim", "depth"):
+        assert parts[key] == pytest.approx(want[key] / 4, rel=1e-4), key
+    assert parts["input_mse"] == pytest.approx(want["input_mse"] / 4, rel=1e-4)
 
 
 def test_input_render_weight_scores_the_input_cameras_from_all_views(dataset, tmp_path):

@@ -299,3 +299,76 @@ def test_gpu_stage2_curates_in_slices_then_trains_for_the_time_left(tmp_path: Pa
     curates = [line for line in calls.read_text().splitlines() if "train curate" in line]
     assert len(curates) == 4
     assert all("--generator .gpu/gen v8.safetensors --size" in c for c in curates)
+
+
+FAKE_GENERATOR_PY = """#!/usr/bin/env bash
+# gpu_train_generator.sh's python: pip, the LPIPS unpacking and `train generator` are recorded
+# and faked (a run logs steps 10 and 30 at 1 s and 11 s: 0.5 s a step, and saves a checkpoint
+# whose step the resume check reads), the rest runs for real
+echo "$*" >> "$CALLS"
+[ "$1 $2" = "-m pip" ] && exit 0
+[ "$1" = scripts/gpu_lpips.py ] && exit 0
+if [ "$1 $2 $3 $4" = "-m prosplat train generator" ]; then
+  args=("$@")
+  for ((i = 0; i < $#; i++)); do
+    [ "${args[$i]}" = --out ] && out=${args[$((i + 1))]}
+    [ "${args[$i]}" = --steps ] && steps=${args[$((i + 1))]}
+  done
+  mkdir -p "$out"
+  printf '{"step": 10, "seconds": 1.0}\\n{"step": 30, "seconds": 11.0}\\n' > "$out/log.jsonl"
+  echo "$steps" > "$out/checkpoint.safetensors"
+  exit 0
+fi
+if [ "$1" = -c ] && [[ "$2" == *weights_step* ]]; then
+  f=$(sed -n "s/.*w('\\(.*\\)').*/\\1/p" <<< "$2"); cat "$f" 2> /dev/null || echo 0; exit 0
+fi
+exec "$REAL_PY" "$@"
+"""
+
+
+def test_gpu_generator_probes_then_trains_every_run_for_the_time_left(tmp_path: Path) -> None:
+    """scripts/gpu_train_generator.sh with its python faked: every run is probed, then trained
+    with its own options for the steps the probe's rate leaves time for, on every pack; a warm
+    machine's second call adds its steps to the run it resumes; what comes back is named."""
+    import sys
+
+    carry = tmp_path / "carry"
+    carry.mkdir()
+    for name in ("train_000.npz", "train_001.npz"):
+        (carry / name).touch()
+    fake = tmp_path / "fakepy"
+    fake.write_text(FAKE_GENERATOR_PY)
+    fake.chmod(0o755)
+    calls = tmp_path / "calls.txt"
+    env = {
+        "PATH": "/usr/bin:/bin", "PY": str(fake), "REAL_PY": sys.executable, "CALLS": str(calls),
+        "CARRY": str(carry), "GSPLAT": "0", "WORK": str(tmp_path / "w"), "OUT": str(tmp_path / "o"),
+    }  # fmt: skip
+    cmd = ["bash", str(SCRIPTS / "gpu_train_generator.sh"), "1000",
+           "a", "--batch 8 --seed 1", "b", "--batch 8 --input-render-weight 2"]  # fmt: skip
+    run = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
+                         timeout=120)  # fmt: skip
+    assert run.returncode == 0, run.stdout + run.stderr
+    lines = [line.split() for line in calls.read_text().splitlines()]
+    trains = [a for a in lines if a[:4] == ["-m", "prosplat", "train", "generator"]]
+    assert len(trains) == 4
+    for a in trains:
+        assert a[a.index("--data") + 1] == f"{carry}/train_000.npz,{carry}/train_001.npz"
+        assert a[a.index("--device") + 1] == "cuda" and a[a.index("--batch") + 1] == "8"
+    probes = [a for a in trains if "/probe_" in a[a.index("--out") + 1]]
+    assert sorted(a[a.index("--steps") + 1] for a in probes) == ["30", "30"]
+    runs = {a[a.index("--out") + 1].split("/")[-1]: a for a in trains if a not in probes}
+    assert "--input-render-weight" in runs["b"] and "--seed" in runs["a"]
+    # 0.5 s a step, 90 % of the ~960 s left after the probe: about 1,700 steps, in fifties
+    steps = int(runs["a"][runs["a"].index("--steps") + 1])
+    assert 1600 <= steps <= 1750 and steps % 50 == 0
+    assert {p.name for p in (tmp_path / "o").iterdir()} == {
+        "a_checkpoint.safetensors", "a_log.jsonl", "b_checkpoint.safetensors", "b_log.jsonl",
+        "logs.tgz",
+    }  # fmt: skip
+    calls.write_text("")
+    again = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
+                           timeout=120)  # fmt: skip
+    assert again.returncode == 0, again.stdout + again.stderr
+    resumed = [line.split() for line in calls.read_text().splitlines() if "/runs/a " in line]
+    assert int(resumed[0][resumed[0].index("--steps") + 1]) > steps  # its steps added

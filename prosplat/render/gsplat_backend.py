@@ -8,6 +8,8 @@ that never drops a sample above 1/255, so very opaque Gaussians may differ in a 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor
 
@@ -50,3 +52,51 @@ def render_gsplat(gaussians: Gaussians, camera: Camera, bg: Tensor):
     depth = torch.where(alpha > 0, colors[0, ..., 3], torch.zeros_like(alpha))
     visible = (meta["radii"][0] > 0).reshape(len(gaussians), -1).any(dim=1)
     return RenderOutput(rgb=rgb, alpha=alpha, depth=depth, visible=visible)
+
+
+def render_gsplat_views(
+    gaussians: Gaussians, cameras: Sequence[Camera], bg: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Several cameras of one size in one ``rasterization`` call.
+
+    gsplat takes a batch of view matrices and intrinsics, so a training step that renders
+    every target and input camera of a scene launches one kernel sequence instead of one
+    per camera: per-camera launches and Python, not the GPU, bounded the first GPU run's
+    step (BENCHMARKS "Generator v2: the first GPU run").
+
+    Returns rgb [C,3,H,W] over ``bg``, alpha [C,H,W], depth [C,H,W] (0 where nothing was
+    drawn), the same numbers :func:`render_gsplat` gives camera by camera.
+    """
+    from gsplat import rasterization
+
+    if gaussians.dtype != torch.float32:
+        raise ValueError(
+            "the gsplat backend renders float32 Gaussians only; call .to(dtype=torch.float32)"
+        )
+    sizes = {(c.width, c.height) for c in cameras}
+    if len(sizes) != 1:
+        raise ValueError(f"render_gsplat_views needs cameras of one size, got {sorted(sizes)}")
+    (width, height), device = sizes.pop(), gaussians.device
+    viewmats = torch.stack([c.world_to_cam for c in cameras]).to(device, torch.float32)
+    Ks = torch.stack([c.K for c in cameras]).to(device, torch.float32)  # [C,3,3]
+    colors, alphas, _ = rasterization(
+        gaussians.means,
+        gaussians.quats,
+        gaussians.scales,
+        gaussians.opacities,
+        gaussians.sh,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane=NEAR_PLANE,
+        eps2d=0.3,
+        sh_degree=gaussians.sh_degree,
+        packed=False,
+        render_mode="RGB+ED",
+        rasterize_mode="classic",
+    )  # colors [C,H,W,4], alphas [C,H,W,1]
+    alpha = alphas[..., 0]
+    rgb = colors[..., :3].permute(0, 3, 1, 2) + (1 - alpha)[:, None] * bg[None, :, None, None]
+    depth = torch.where(alpha > 0, colors[..., 3], torch.zeros_like(alpha))
+    return rgb, alpha, depth

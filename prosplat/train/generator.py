@@ -50,6 +50,7 @@ import argparse
 import json
 import math
 import random
+import sys
 import time
 import warnings
 from collections.abc import Iterator, Sequence
@@ -327,24 +328,31 @@ def batch_cameras(K: Tensor, w2c: Tensor, width: int, height: int) -> list[Camer
     return [Camera(K[v].double(), w2c[v].double(), width, height) for v in range(K.shape[0])]
 
 
-def _render(gaussians, cam: Camera, bg: Tensor, cpu_backend: str = "cpu-fused"):
-    """Render for the loss. On CUDA without gsplat the Gaussians go to the CPU rasterizer and
-    the outputs come back (autograd follows both copies), so a GPU still trains the network.
+def _render_views(
+    gaussians, cams: list[Camera], bg: Tensor, cpu_backend: str = "cpu-fused"
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Render the loss's cameras (one size): rgb [C,3,H,W], alpha [C,H,W], depth [C,H,W].
 
-    On the CPU the projection is the fused C++ kernel (``cpu_backend``): the torch projection
-    computes the same float64 numbers (the render tests hold them together) through ~100 ops
-    whose autograd cost ~20 % of a training step (``benchmarks/generator_step.py``).
+    With gsplat on CUDA all cameras go in one call (:func:`render_gsplat_views`). On CUDA
+    without gsplat the Gaussians go to the CPU rasterizer and the outputs come back (autograd
+    follows both copies), so a GPU still trains the network. On the CPU the projection is
+    the fused C++ kernel (``cpu_backend``): the torch projection computes the same float64
+    numbers (the render tests hold them together) through ~100 ops whose autograd cost ~20 %
+    of a training step (``benchmarks/generator_step.py``).
     """
     from prosplat.render import _gsplat_available
 
     device = gaussians.device
-    if device.type == "cuda" and not _gsplat_available(device):
-        out = render(gaussians.to("cpu"), cam, background=bg.cpu(), backend=cpu_backend)
-        out.rgb, out.alpha, out.depth = (t.to(device) for t in (out.rgb, out.alpha, out.depth))
-        return out
-    if device.type == "cpu":
-        return render(gaussians, cam, background=bg, backend=cpu_backend)
-    return render(gaussians, cam, background=bg)
+    if device.type == "cuda" and _gsplat_available(device):
+        from prosplat.render.gsplat_backend import render_gsplat_views
+
+        return render_gsplat_views(gaussians, cams, bg)
+    # the CPU path moves non-CPU Gaussians to the CPU and its outputs back
+    outs = [render(gaussians, cam, background=bg, backend=cpu_backend) for cam in cams]
+    rgb, alpha, depth = (
+        torch.stack([getattr(o, k) for o in outs]) for k in ("rgb", "alpha", "depth")
+    )
+    return rgb, alpha, depth
 
 
 def render_loss(
@@ -378,24 +386,21 @@ def render_loss(
             images, depths = batch[f"{group}_images"][b], batch.get(f"{group}_depths")
             h, w = images.shape[-2:]
             cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
-            for j, cam in enumerate(cams):
-                out = _render(gaussians, cam, bg, cpu_backend)
-                gt = images[j]
-                mse = torch.mean((out.rgb - gt) ** 2)
-                if group == "input":
-                    sums["input_mse"] = sums["input_mse"] + mse.detach()
-                sums["mse"] = sums["mse"] + weight * mse
-                if lpips_fn is not None and cfg.lpips_weight > 0:
-                    sums["lpips"] = (
-                        sums["lpips"] + weight * lpips_fn(out.rgb[None], gt[None]).mean()
-                    )
+            rgb, alpha, depth = _render_views(gaussians, cams, bg, cpu_backend)  # [C,3,H,W]
+            mse = ((rgb - images) ** 2).mean(dim=(1, 2, 3))  # [C]
+            if group == "input":
+                sums["input_mse"] = sums["input_mse"] + mse.detach().sum()
+            sums["mse"] = sums["mse"] + weight * mse.sum()
+            if lpips_fn is not None and cfg.lpips_weight > 0:
+                sums["lpips"] = sums["lpips"] + weight * lpips_fn(rgb, images).sum()
+            for j in range(len(cams)):
                 if cfg.ssim_weight > 0:
-                    sums["ssim"] = sums["ssim"] + weight * (1 - ssim(out.rgb, gt))
+                    sums["ssim"] = sums["ssim"] + weight * (1 - ssim(rgb[j], images[j]))
                 if cfg.depth_weight > 0 and depths is not None:
                     gt_d = depths[b, j]
-                    valid = (gt_d > 0) & (out.alpha > 0.5)
+                    valid = (gt_d > 0) & (alpha[j] > 0.5)
                     if valid.any():
-                        err = depth_error(out.depth[valid], gt_d[valid], cfg.depth_loss)
+                        err = depth_error(depth[j][valid], gt_d[valid], cfg.depth_loss)
                         sums["depth"] = sums["depth"] + weight * err
     n = b_size * m
     parts = {k: v / n for k, v in sums.items()}
@@ -491,8 +496,8 @@ def validate(model, cfg: TrainConfig, device: torch.device, ds=None) -> dict[str
             g = out.gaussians(0)
             h, w = item["target_images"].shape[-2:]
             cams = batch_cameras(item["target_K"][0], item["target_w2c"][0], w, h)
-            for j, cam in enumerate(cams):
-                pred = _render(g, cam, torch.zeros(3, device=device)).rgb.clamp(0, 1)
+            rgbs = _render_views(g, cams, torch.zeros(3, device=device))[0].clamp(0, 1)
+            for j, pred in enumerate(rgbs):
                 gt = item["target_images"][0, j]
                 scores["psnr"].append(float(psnr(pred, gt)))
                 scores["ssim"].append(float(ssim(pred, gt)))
@@ -725,6 +730,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         disable=not progress or not dist.is_main,
     )
     t_start = time.perf_counter()
+    saved, interrupted = step, False
     try:
         for batch in loader:
             n_views = int(batch["input_images"].shape[1])
@@ -770,10 +776,25 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                     _save_heads(model, opt, step, out, cfg.init)
                 else:
                     _save(pipe, opt, step, out, average)
+                saved = step
+    except KeyboardInterrupt:  # Ctrl-C, or `timeout --signal=INT` on a time-boxed machine
+        interrupted = True
+        if dist.is_main and step > saved and heads:  # the same command resumes from here
+            _save_heads(model, opt, step, out, cfg.init)
+        elif dist.is_main and step > saved:
+            _save(pipe, opt, step, out, average)
     finally:
         bar.close()
         if log is not None:
             log.close()
+    if interrupted:
+        where = "no checkpoint yet"
+        if (out / "checkpoint.safetensors").exists():
+            where = f"its checkpoint is at step {step}: the same command resumes from there"
+        print(
+            f"train generator: interrupted at step {step} of {cfg.last_step}; {where}",
+            file=sys.stderr,
+        )
     dist.barrier()  # the final checkpoint exists before any rank returns its path
     if heads:
         from prosplat.train.depthsplat_heads import finetuned_path
