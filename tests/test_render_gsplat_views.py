@@ -80,7 +80,7 @@ def test_render_gsplat_views_refuses_mixed_sizes_and_float64(fake_gsplat):
 
     g, cams = _scene()
     small = Camera.look_at((0, 0, -4.0), (0, 0, 0), (0, -1, 0), 30.0, 20, 20)
-    with pytest.raises(ValueError, match="one size"):
+    with pytest.raises(ValueError, match="of one size"):
         render_gsplat_views(g, [*cams, small], torch.zeros(3))
     with pytest.raises(ValueError, match="float32"):
         render_gsplat_views(g.to(dtype=torch.float64), cams, torch.zeros(3))
