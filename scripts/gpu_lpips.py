@@ -6,6 +6,7 @@ widen them on arrival. The metadata (where the weights come from) travels unchan
 
     python scripts/gpu_lpips.py pack DIR     # here: $PROSPLAT_CACHE's weights -> DIR/*.f16.safetensors
     python scripts/gpu_lpips.py unpack DIR   # there: DIR/*.f16.safetensors -> $PROSPLAT_CACHE
+                                             # (none there: a note, the cache is left as it is)
 """
 
 from __future__ import annotations
@@ -43,9 +44,8 @@ def main(argv: list[str]) -> int:
         _convert(src, f16, half=True)
     elif f16.is_file():
         _convert(f16, cache_dir() / NAME, half=False)
-    else:
-        print(f"no {f16}: make it with `gpu_lpips.py pack {folder}`", file=sys.stderr)
-        return 1
+    else:  # the cache may hold the weights already (a warm machine, a dry run here)
+        print(f"gpu_lpips.py: no {f16}; LPIPS reads {cache_dir() / NAME}", file=sys.stderr)
     return 0
 
 

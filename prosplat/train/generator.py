@@ -730,7 +730,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         disable=not progress or not dist.is_main,
     )
     t_start = time.perf_counter()
-    saved, interrupted = step, False
+    saved, saving, interrupted = step, False, False
     try:
         for batch in loader:
             n_views = int(batch["input_images"].shape[1])
@@ -772,12 +772,15 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                     log.write(json.dumps(rec) + "\n")
                     log.flush()
             if dist.is_main and (step % cfg.save_every == 0 or step == cfg.last_step):
+                saving = True
                 if heads:
                     _save_heads(model, opt, step, out, cfg.init)
                 else:
                     _save(pipe, opt, step, out, average)
-                saved = step
+                saved, saving = step, False
     except KeyboardInterrupt:  # Ctrl-C, or `timeout --signal=INT` on a time-boxed machine
+        if saving:  # stopped mid-save: the checkpoint pair's own recovery resumes (load_checkpoint)
+            raise
         interrupted = True
         if dist.is_main and step > saved and heads:  # the same command resumes from here
             _save_heads(model, opt, step, out, cfg.init)
