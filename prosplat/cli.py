@@ -493,15 +493,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--jpeg-quality",
         type=int,
         default=95,
-        help="JPEG quality of the images, 1-95 (default 95, 36-38 dB against the PNG); lower "
-        "fits more scenes into a bounded transfer",
+        help="JPEG quality of the images, 1-95 (default 95); lower fits more scenes into a "
+        "bounded transfer",
     )
     pk.add_argument(
         "--depth-bits",
         type=int,
         default=10,
-        help="mantissa bits kept of the float16 depth, 1-10 (default 10: all); 7 packs the "
-        "depth 2.4x smaller at 0.4 %% relative error",
+        help="mantissa bits kept of the float16 depth, 1-10 (default 10: all); fewer pack "
+        "smaller (7: 0.4 %% relative error)",
     )
     pk.set_defaults(func=cmd_scenes_pack)
 

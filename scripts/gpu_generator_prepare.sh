@@ -5,14 +5,14 @@
 #          and prosplat need that the machine's torch lacks, for its Python 3.12
 #   lpips_alex_v0.1.f16.safetensors  the LPIPS weights in float16 (scripts/gpu_lpips.py)
 #   train_*.npz  the scenes with depth, packed at JPEG q85 with 7-bit depth mantissas
-#          (`prosplat scenes pack --jpeg-quality 85 --depth-bits 7`): about 0.11 MB a 16-view
-#          128-px scene against 0.22 at q95 and full float16, so twice the scenes fit
+#          (`prosplat scenes pack --jpeg-quality 85 --depth-bits 7`): about 0.13 MB a 16-view
+#          128-px scene against 0.22 at q95 and full float16 (BENCHMARKS "Generator v11")
 # .gpu_gen goes into .git/info/exclude: the call carries it only when named, carry [".gpu_gen"].
 # Prints the size the call will carry: tracked files + .gpu_gen must stay under 64 MiB.
 #   [DATA=data/gen_v6] [MAX_MB=17] scripts/gpu_generator_prepare.sh
 # DATA: the scene folders to draw from (default: the shipped generator's 420 training scenes,
-# scripts/train_generator_v6.sh's data/gen_v6), every k-th of them so that the packs stay
-# under MAX_MB. The packs are made again when these change.
+# scripts/train_generator_v6.sh's data/gen_v6), as many as fit MAX_MB of packs, spread evenly
+# over the sorted names. The packs are made again when these change.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}

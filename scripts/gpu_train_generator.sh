@@ -12,8 +12,8 @@
 # Each NAME is a run in $WORK/runs/NAME with its `prosplat train generator` options (without
 # --steps); the runs train at once. A probe first runs every run PROBE_STEPS steps together
 # and times them, so each run's cosine schedule ends where the call's SECONDS do; then the runs
-# train for that many steps, stopped by `timeout --signal=INT` if they overrun (train generator
-# saves the step reached). A warm machine's earlier run in $WORK/runs/NAME is resumed: its
+# train for that many steps, sent SIGINT if they overrun the call (train generator saves the
+# step reached). A warm machine's earlier run in $WORK/runs/NAME is resumed: its
 # steps are added. What comes back in $OUT: NAME_checkpoint.safetensors, NAME_log.jsonl and
 # logs.tgz (setup, gsplat build, probe and training logs).
 # gsplat renders every camera of a scene in one call (prosplat.render.gsplat_backend); without
@@ -105,7 +105,7 @@ done
 sleep 1
 limit=$(($(left) - 15))
 [ "$limit" -gt 30 ] || limit=30
-# timeout signals the runs it did not start: stop them at the limit, each saves where it is
+# a stopper sends the runs SIGINT at the limit (each saves where it is); waited on are the runs
 (sleep "$limit" && pkill -INT -f "prosplat train generator --device $DEVICE") > /dev/null 2>&1 &
 stopper=$!
 for job in $(jobs -p); do [ "$job" != "$stopper" ] && wait "$job"; done

@@ -38,8 +38,8 @@ def _jpeg_bytes(image: torch.Tensor, quality: int = JPEG_QUALITY) -> np.ndarray:
 
 def _round_mantissa(depth: np.ndarray, bits: int) -> np.ndarray:
     """float16 depth rounded to ``bits`` of its 10 mantissa bits (relative error below
-    2^-(bits+1)): the dropped bits are noise to zlib, so 7 bits pack the depth 2.4x smaller
-    at a relative error of 0.4 %, far below the depth errors training supervises."""
+    2^-(bits+1)): the dropped bits are noise to zlib, so the depth packs smaller, and 7 bits
+    (0.4 %) stay far below the depth errors training supervises."""
     if bits >= 10:
         return depth
     drop = 10 - bits

@@ -730,7 +730,17 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         disable=not progress or not dist.is_main,
     )
     t_start = time.perf_counter()
-    saved, saving, interrupted = step, False, False
+    saved, saving, interrupted = step, False, False  # saved: the step the checkpoint is at
+
+    def save() -> None:
+        nonlocal saved, saving
+        saving = True
+        if heads:
+            _save_heads(model, opt, step, out, cfg.init)
+        else:
+            _save(pipe, opt, step, out, average)
+        saved, saving = step, False
+
     try:
         for batch in loader:
             n_views = int(batch["input_images"].shape[1])
@@ -772,28 +782,21 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
                     log.write(json.dumps(rec) + "\n")
                     log.flush()
             if dist.is_main and (step % cfg.save_every == 0 or step == cfg.last_step):
-                saving = True
-                if heads:
-                    _save_heads(model, opt, step, out, cfg.init)
-                else:
-                    _save(pipe, opt, step, out, average)
-                saved, saving = step, False
+                save()
     except KeyboardInterrupt:  # Ctrl-C, or `timeout --signal=INT` on a time-boxed machine
         if saving:  # stopped mid-save: the checkpoint pair's own recovery resumes (load_checkpoint)
             raise
         interrupted = True
-        if dist.is_main and step > saved and heads:  # the same command resumes from here
-            _save_heads(model, opt, step, out, cfg.init)
-        elif dist.is_main and step > saved:
-            _save(pipe, opt, step, out, average)
+        if dist.is_main and step > saved:  # the same command resumes from here
+            save()
     finally:
         bar.close()
         if log is not None:
             log.close()
-    if interrupted:
+    if interrupted and dist.is_main:
         where = "no checkpoint yet"
-        if (out / "checkpoint.safetensors").exists():
-            where = f"its checkpoint is at step {step}: the same command resumes from there"
+        if saved:
+            where = f"its checkpoint is at step {saved}: the same command resumes from there"
         print(
             f"train generator: interrupted at step {step} of {cfg.last_step}; {where}",
             file=sys.stderr,
