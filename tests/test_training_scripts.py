@@ -211,6 +211,13 @@ def test_stage2_v17_curates_half_size_splats_of_its_subset_then_runs_v16s_fill_r
     ]  # fmt: skip
 
 
+def _run_gpu_script(cmd: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
+    """A GPU script run here with its python faked (the FAKE_*PY texts below)."""
+    return subprocess.run(
+        cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True, timeout=120
+    )
+
+
 FAKE_PY = """#!/usr/bin/env bash
 # gpu_train_stage2.sh's python: pip and the prosplat training commands are recorded and faked
 # (curate writes its --out, improve a log of 20 steps in 10 s), the rest runs for real
@@ -253,8 +260,7 @@ def test_gpu_stage2_curates_in_slices_then_trains_for_the_time_left(tmp_path: Pa
         "SETS": "raw64:2,3:64:0 ref64:2:64:300",
     }  # fmt: skip
     cmd = ["bash", str(SCRIPTS / "gpu_train_stage2.sh"), "10000", "--crop", "48", "--fill"]
-    run = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
-                         timeout=120)  # fmt: skip
+    run = _run_gpu_script(cmd, env)
     assert run.returncode == 0, run.stdout + run.stderr
     lines = [line.split() for line in calls.read_text().splitlines()]
     curates = [a for a in lines if a[:4] == ["-m", "prosplat", "train", "curate"]]
@@ -287,14 +293,12 @@ def test_gpu_stage2_curates_in_slices_then_trains_for_the_time_left(tmp_path: Pa
         "logs.tgz",
     }
     calls.write_text("")
-    again = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
-                           timeout=120)  # fmt: skip
+    again = _run_gpu_script(cmd, env)
     assert again.returncode == 0, again.stderr
     assert "train curate" not in calls.read_text()
     # a candidate generator's renders, curated afresh in another WORK folder
     env = {**env, "GENERATOR": ".gpu/gen v8.safetensors", "WORK": str(tmp_path / "w2")}
-    other = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
-                           timeout=120)  # fmt: skip
+    other = _run_gpu_script(cmd, env)
     assert other.returncode == 0, other.stdout + other.stderr
     curates = [line for line in calls.read_text().splitlines() if "train curate" in line]
     assert len(curates) == 4
@@ -346,8 +350,7 @@ def test_gpu_generator_probes_then_trains_every_run_for_the_time_left(tmp_path: 
     }  # fmt: skip
     cmd = ["bash", str(SCRIPTS / "gpu_train_generator.sh"), "1000",
            "a", "--batch 8 --seed 1", "b", "--batch 8 --input-render-weight 2"]  # fmt: skip
-    run = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
-                         timeout=120)  # fmt: skip
+    run = _run_gpu_script(cmd, env)
     assert run.returncode == 0, run.stdout + run.stderr
     lines = [line.split() for line in calls.read_text().splitlines()]
     trains = [a for a in lines if a[:4] == ["-m", "prosplat", "train", "generator"]]
@@ -367,8 +370,7 @@ def test_gpu_generator_probes_then_trains_every_run_for_the_time_left(tmp_path: 
         "logs.tgz",
     }  # fmt: skip
     calls.write_text("")
-    again = subprocess.run(cmd, cwd=SCRIPTS.parent, env=env, capture_output=True, text=True,
-                           timeout=120)  # fmt: skip
+    again = _run_gpu_script(cmd, env)
     assert again.returncode == 0, again.stdout + again.stderr
     resumed = [line.split() for line in calls.read_text().splitlines() if "/runs/a " in line]
     assert int(resumed[0][resumed[0].index("--steps") + 1]) > steps  # its steps added
