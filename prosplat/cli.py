@@ -212,6 +212,21 @@ def cmd_scenes_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _int_between(lo: int, hi: int):
+    """An argparse type: a whole number in [lo, hi], refused with a one-line usage error."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be {lo}-{hi}, got {value}")
+        return value
+
+    return parse
+
+
 def cmd_scenes_pack(args: argparse.Namespace) -> int:
     """Pack scene folders into size-bounded .npz files (:mod:`prosplat.data.packed`)."""
     from tqdm import tqdm
@@ -491,15 +506,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pk.add_argument(
         "--jpeg-quality",
-        type=int,
+        type=_int_between(1, 95),
         default=95,
+        metavar="Q",
         help="JPEG quality of the images, 1-95 (default 95); lower fits more scenes into a "
         "bounded transfer",
     )
     pk.add_argument(
         "--depth-bits",
-        type=int,
+        type=_int_between(1, 10),
         default=10,
+        metavar="BITS",
         help="mantissa bits kept of the float16 depth, 1-10 (default 10: all); fewer pack "
         "smaller (7: 0.4 %% relative error)",
     )

@@ -246,6 +246,11 @@ def test_the_pack_command_splits_and_never_overwrites(scenes, tmp_path, capsys):
               "--jpeg-quality", "80", "--depth-bits", "7"])  # fmt: skip
     assert done.value.code == 0
     (bare,) = tmp_path.glob("bare_*.npz")
+    for bad in (["--jpeg-quality", "0"], ["--depth-bits", "11"], ["--depth-bits", "x"]):
+        with pytest.raises(SystemExit) as done:  # a usage error, before anything is written
+            main([*args[:-2], "--out", str(tmp_path / "bad"), *bad])
+        assert done.value.code == 2
+    assert not list(tmp_path.glob("bad*"))
     assert not Pack(bare).has_depth and len(Pack(bare)) == 3
 
 
