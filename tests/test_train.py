@@ -112,6 +112,41 @@ def test_an_interrupted_run_saves_the_step_reached_and_resumes(dataset, tmp_path
     assert steps == [1, 2, 3, 4, 5]
 
 
+def test_a_run_killed_before_its_first_save_starts_over_with_the_same_command(
+    dataset, tmp_path, monkeypatch
+):
+    """A run killed (not interrupted: no save) before its first checkpoint leaves its config
+    and log behind; the same command starts it over with a warning and a log that lists each
+    step once, and a changed command is refused, naming what changed."""
+    import prosplat.train.generator as gen
+
+    real, calls = gen.render_loss, []
+
+    def killed_at_step_3(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise RuntimeError("killed")
+        return real(*args, **kwargs)
+
+    out = tmp_path / "run"
+    cfg = TrainConfig(
+        data=str(dataset), out=str(out), steps=4, inputs=2, targets=1, lpips_weight=0.0,
+        log_every=1, save_every=10, warmup=1,
+    )  # fmt: skip
+    monkeypatch.setattr(gen, "render_loss", killed_at_step_3)
+    with pytest.raises(RuntimeError, match="killed"):
+        train(cfg, progress=False)
+    assert load_checkpoint(out) is None and (out / "log.jsonl").read_text().count("step") == 2
+    monkeypatch.setattr(gen, "render_loss", real)
+    changed = TrainConfig(**{**cfg.__dict__, "lr": cfg.lr * 2})
+    with pytest.raises(FileExistsError, match="differs in lr"):
+        train(changed, progress=False)
+    with pytest.warns(UserWarning, match="before its first checkpoint"):
+        train(cfg, progress=False)
+    steps = [json.loads(line)["step"] for line in (out / "log.jsonl").read_text().splitlines()]
+    assert steps == [1, 2, 3, 4] and load_checkpoint(out).step == 4
+
+
 def test_stop_at_takes_a_run_in_parts_with_the_same_result(dataset, tmp_path):
     """--stop-at 2 then the same run to its end gives the weights (and learning rates) of one
     uninterrupted run: the schedule follows --steps in both."""

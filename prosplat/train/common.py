@@ -318,6 +318,38 @@ def load_checkpoint(
     )
 
 
+def claim_run_folder(
+    out: str | Path, config: Mapping[str, Any], per_call: Sequence[str] = (), is_main: bool = True
+) -> None:
+    """Make sure a run with no checkpoint in ``out`` may start there from step 0.
+
+    A folder whose ``train_config.json`` is this very run's (the same settings, apart from the
+    ``per_call`` keys such as where this invocation stops) was stopped before its first save:
+    it starts over, with a warning, and its old log records are dropped (on the main rank),
+    instead of the user deleting the folder by hand. A folder holding another run's config
+    raises :class:`FileExistsError` naming the settings that differ, so no run's record is
+    overwritten. Call it on every rank, so that every rank raises.
+    """
+    out = Path(out)
+    cfg_path = out / "train_config.json"
+    if not cfg_path.exists():
+        return
+    old = {k: v for k, v in json.loads(cfg_path.read_text()).items() if k not in per_call}
+    new = {k: v for k, v in json.loads(json.dumps(dict(config))).items() if k not in per_call}
+    differ = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
+    if differ:
+        raise FileExistsError(
+            f"{out} holds another run's config but no checkpoint (it differs in "
+            f"{', '.join(differ)}); pick a new --out, or delete the folder to start it over"
+        )
+    if is_main:
+        warnings.warn(
+            f"{out}: this run stopped before its first checkpoint; starting it again from step 0",
+            stacklevel=2,
+        )
+        truncate_log(out / "log.jsonl", 0)
+
+
 def truncate_log(path: str | Path, step: int) -> None:
     """Drop the JSON-lines records of ``path`` whose ``step`` is past ``step`` (written after
     the checkpoint a resume starts from), so the log of a resumed run lists each step once.

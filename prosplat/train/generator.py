@@ -67,6 +67,7 @@ from prosplat.render import render
 from prosplat.train.common import (
     Dist,
     check_intervals,
+    claim_run_folder,
     draw_count,
     load_checkpoint,
     pick_device,
@@ -660,10 +661,8 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         params = list(model.parameters())
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     ckpt = load_checkpoint(out, map_location=device)  # every rank reads before rank 0 writes
-    if ckpt is None and cfg_path.exists():
-        raise FileExistsError(
-            f"{out} holds another run's config but no checkpoint; pick a new --out"
-        )
+    if ckpt is None:
+        claim_run_folder(out, asdict(cfg), per_call=_PER_CALL, is_main=dist.is_main)
     step = 0
     if ckpt is None and cfg.init and not heads:
         from prosplat.checkpoints import read_checkpoint
@@ -824,13 +823,17 @@ def _save(pipe, opt, step: int, out: Path, average: WeightAverage | None = None)
     save_checkpoint(out, step, weights, state, metadata=metadata)
 
 
+#: Settings of one invocation, not of how the steps were trained (where this call stops).
+_PER_CALL = ("stop_at",)
+
+
 def _record_resumed_config(cfg_path: Path, cfg: TrainConfig, step: int) -> None:
     """A run resumed with other settings (``--ema`` turned on, a longer ``--steps``) writes
     them to ``train_config.json`` and keeps what it ran with before as
     ``train_config.before_<step>.json``, so the folder says how every step was trained."""
     new = json.dumps(asdict(cfg), indent=1)
     old = cfg_path.read_text() if cfg_path.exists() else None
-    per_call = ("stop_at",)  # where this invocation stops is not how the steps were trained
+    per_call = _PER_CALL
     if old is None:
         return
     # keys an older version did not write (``ema`` before it existed) count as today's value

@@ -37,6 +37,7 @@ from prosplat.train.augment import (
 from prosplat.train.common import (
     Dist,
     check_intervals,
+    claim_run_folder,
     load_checkpoint,
     save_checkpoint,
     setup_distributed,
@@ -156,10 +157,8 @@ class _Run:
         self.step = 0
         ckpt = load_checkpoint(self.out, map_location=dist.device)
         cfg_path = self.out / "train_config.json"
-        if ckpt is None and cfg_path.exists():
-            raise FileExistsError(
-                f"{self.out} holds another run's config but no checkpoint; pick a new --out"
-            )
+        if ckpt is None:
+            claim_run_folder(self.out, asdict(cfg), is_main=dist.is_main)
         self.resumed = ckpt
         if ckpt is not None:
             self.opt.load_state_dict(ckpt.state["optimizer"])
