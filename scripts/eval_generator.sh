@@ -4,7 +4,8 @@
 # two cores (one thread each) and a candidate is scored beside the shipped weights on data
 # rendered the same way:
 #   depth    input-view depth AbsRel at 128 and 64 px (benchmarks/input_depth.py --no-sweep)
-#   ladder   test ladder at 64 and 128 px: paste, raw, enhanced (prosplat eval ladder)
+#   ladder   test ladder at 64 and 128 px: paste, raw, enhanced, and both with holes filled
+#            (prosplat eval ladder; issue 12 scores the filled raw render, BENCHMARKS "Holes")
 #   ladder256  the same at 256 px on data/test256
 #   views    flicker along 24-frame paths and re-rendered input cameras at 64 and 128 px
 #            (benchmarks/enhance_views.py --inputs-too)
@@ -40,10 +41,10 @@ for part in "$@"; do
     done > "$log" 2>&1 ;;
   ladder)
     $P eval ladder --data data/test128 --sizes 64 128 --views 4 \
-      --rows paste generator enhanced --generator "$weights" --out "$out/ladder" > "$log" 2>&1 ;;
+      --rows paste generator enhanced fill --generator "$weights" --out "$out/ladder" > "$log" 2>&1 ;;
   ladder256)
     $P eval ladder --data data/test256 --sizes 256 --views 4 \
-      --rows paste generator enhanced --generator "$weights" --out "$out/ladder256" > "$log" 2>&1 ;;
+      --rows paste generator enhanced fill --generator "$weights" --out "$out/ladder256" > "$log" 2>&1 ;;
   views)
     $PY benchmarks/enhance_views.py --data data/test128 --sizes 64 128 --views 4 \
       --working-sizes -1 --flicker-frames 24 --inputs-too --generator "$weights" \
