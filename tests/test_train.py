@@ -207,8 +207,9 @@ def test_lr_schedule_warms_up_and_decays():
 def test_a_run_folder_of_another_run_is_not_overwritten(dataset, tmp_path):
     out = tmp_path / "run"
     out.mkdir()
-    (out / "train_config.json").write_text("{}")
-    with pytest.raises(FileExistsError, match="another run"):
+    other = TrainConfig(data="elsewhere", out=str(out), steps=1)
+    (out / "train_config.json").write_text(json.dumps(other.__dict__))
+    with pytest.raises(FileExistsError, match="another run.*differs in data"):
         train(TrainConfig(data=str(dataset), out=str(out), steps=1), progress=False)
 
 

@@ -336,7 +336,8 @@ def claim_run_folder(
         return
     old = {k: v for k, v in json.loads(cfg_path.read_text()).items() if k not in per_call}
     new = {k: v for k, v in json.loads(json.dumps(dict(config))).items() if k not in per_call}
-    differ = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
+    # a key the config lacks (written before the setting existed) counts as today's value
+    differ = sorted(k for k in old if k not in new or old[k] != new[k])
     if differ:
         raise FileExistsError(
             f"{out} holds another run's config but no checkpoint (it differs in "
