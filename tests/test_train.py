@@ -8,6 +8,7 @@ import math
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -85,28 +86,35 @@ def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
     assert torch.load(out / "state.pt", weights_only=True)["step"] == 5
 
 
-def test_an_interrupted_run_saves_the_step_reached_and_resumes(dataset, tmp_path, monkeypatch):
-    """Ctrl-C (or `timeout --signal=INT` on a time-boxed GPU call) between checkpoints keeps
-    the steps done: a checkpoint at the step reached, and the same command goes on from it."""
+def _fail_render_loss_at(monkeypatch, call: int, error: BaseException | type) -> Callable:
+    """Make the training loss raise ``error`` on its ``call``-th call (a Ctrl-C, a crash);
+    returns the function that puts the real loss back."""
     import prosplat.train.generator as gen
 
     real, calls = gen.render_loss, []
 
-    def interrupt_at_step_4(*args, **kwargs):
+    def failing(*args, **kwargs):
         calls.append(1)
-        if len(calls) == 4:
-            raise KeyboardInterrupt
+        if len(calls) == call:
+            raise error
         return real(*args, **kwargs)
 
+    monkeypatch.setattr(gen, "render_loss", failing)
+    return lambda: monkeypatch.setattr(gen, "render_loss", real)
+
+
+def test_an_interrupted_run_saves_the_step_reached_and_resumes(dataset, tmp_path, monkeypatch):
+    """Ctrl-C (or `timeout --signal=INT` on a time-boxed GPU call) between checkpoints keeps
+    the steps done: a checkpoint at the step reached, and the same command goes on from it."""
     out = tmp_path / "run"
     cfg = TrainConfig(
         data=str(dataset), out=str(out), steps=5, inputs=2, targets=1, lpips_weight=0.0,
         log_every=1, save_every=10, warmup=1,
     )  # fmt: skip
-    monkeypatch.setattr(gen, "render_loss", interrupt_at_step_4)
+    restore = _fail_render_loss_at(monkeypatch, 4, KeyboardInterrupt)
     train(cfg, progress=False)
     assert torch.load(out / "state.pt", weights_only=True)["step"] == 3  # none was due (10)
-    monkeypatch.setattr(gen, "render_loss", real)
+    restore()
     train(cfg, progress=False)
     steps = [json.loads(line)["step"] for line in (out / "log.jsonl").read_text().splitlines()]
     assert steps == [1, 2, 3, 4, 5]
@@ -118,26 +126,16 @@ def test_a_run_killed_before_its_first_save_starts_over_with_the_same_command(
     """A run killed (not interrupted: no save) before its first checkpoint leaves its config
     and log behind; the same command starts it over with a warning and a log that lists each
     step once, and a changed command is refused, naming what changed."""
-    import prosplat.train.generator as gen
-
-    real, calls = gen.render_loss, []
-
-    def killed_at_step_3(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 3:
-            raise RuntimeError("killed")
-        return real(*args, **kwargs)
-
     out = tmp_path / "run"
     cfg = TrainConfig(
         data=str(dataset), out=str(out), steps=4, inputs=2, targets=1, lpips_weight=0.0,
         log_every=1, save_every=10, warmup=1,
     )  # fmt: skip
-    monkeypatch.setattr(gen, "render_loss", killed_at_step_3)
+    restore = _fail_render_loss_at(monkeypatch, 3, RuntimeError("killed"))
     with pytest.raises(RuntimeError, match="killed"):
         train(cfg, progress=False)
     assert load_checkpoint(out) is None and (out / "log.jsonl").read_text().count("step") == 2
-    monkeypatch.setattr(gen, "render_loss", real)
+    restore()
     changed = TrainConfig(**{**cfg.__dict__, "lr": cfg.lr * 2})
     with pytest.raises(FileExistsError, match="differs in lr"):
         train(changed, progress=False)
