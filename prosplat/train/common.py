@@ -318,6 +318,16 @@ def load_checkpoint(
     )
 
 
+def changed_settings(
+    old: Mapping[str, Any], new: Mapping[str, Any], per_call: Sequence[str] = ()
+) -> list[str]:
+    """The settings a saved ``train_config.json`` (``old``, as loaded) holds at other values
+    than ``new``, sorted; ``per_call`` keys (where this invocation stops) do not count, and a
+    key ``old`` lacks (written before the setting existed) counts as today's value."""
+    new = json.loads(json.dumps(dict(new)))  # tuples as lists, as the saved file has them
+    return sorted(k for k in old if k not in per_call and (k not in new or old[k] != new[k]))
+
+
 def claim_run_folder(
     out: str | Path, config: Mapping[str, Any], per_call: Sequence[str] = (), is_main: bool = True
 ) -> None:
@@ -334,10 +344,7 @@ def claim_run_folder(
     cfg_path = out / "train_config.json"
     if not cfg_path.exists():
         return
-    old = {k: v for k, v in json.loads(cfg_path.read_text()).items() if k not in per_call}
-    new = {k: v for k, v in json.loads(json.dumps(dict(config))).items() if k not in per_call}
-    # a key the config lacks (written before the setting existed) counts as today's value
-    differ = sorted(k for k in old if k not in new or old[k] != new[k])
+    differ = changed_settings(json.loads(cfg_path.read_text()), config, per_call)
     if differ:
         raise FileExistsError(
             f"{out} holds another run's config but no checkpoint (it differs in "

@@ -66,6 +66,7 @@ from prosplat.generator.config import MAX_ALEXNET_LAYERS
 from prosplat.render import render
 from prosplat.train.common import (
     Dist,
+    changed_settings,
     check_intervals,
     claim_run_folder,
     draw_count,
@@ -831,23 +832,15 @@ def _record_resumed_config(cfg_path: Path, cfg: TrainConfig, step: int) -> None:
     """A run resumed with other settings (``--ema`` turned on, a longer ``--steps``) writes
     them to ``train_config.json`` and keeps what it ran with before as
     ``train_config.before_<step>.json``, so the folder says how every step was trained."""
-    new = json.dumps(asdict(cfg), indent=1)
-    old = cfg_path.read_text() if cfg_path.exists() else None
-    per_call = _PER_CALL
-    if old is None:
+    if not cfg_path.exists():
         return
-    # keys an older version did not write (``ema`` before it existed) count as today's value
-    before = {**json.loads(new), **json.loads(old)}
-    if _without(before, per_call) == _without(json.loads(new), per_call):
+    old = cfg_path.read_text()
+    if not changed_settings(json.loads(old), asdict(cfg), _PER_CALL):
         return
     kept = cfg_path.with_name(f"train_config.before_{step}.json")
     if not kept.exists():
         kept.write_text(old)
-    cfg_path.write_text(new)
-
-
-def _without(d: dict, keys: Sequence[str]) -> dict:
-    return {k: v for k, v in d.items() if k not in keys}
+    cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
 
 
 def _init_weights(cfg: TrainConfig):
