@@ -56,6 +56,10 @@ def main() -> None:
         depths = resize_depths(scene.depths, w, h)
         cams_in = [r.cameras[i] for i in r.inputs]
         ims = r.images[r.inputs]
+        seen_of = {  # the same masks score every model
+            t: valid_mask(r.cameras[t], depths[t], cams_in, depths[r.inputs], args.tolerance)
+            for t in scene.target_indices
+        }
         line = None
         for name, model in models.items():
             if model is None:
@@ -63,10 +67,7 @@ def main() -> None:
             else:
                 g = model.reconstruct_pruned(ims, cams_in, r.near, r.far).gaussians
             row = torch.zeros(6)
-            for t in scene.target_indices:
-                seen = valid_mask(
-                    r.cameras[t], depths[t], cams_in, depths[r.inputs], args.tolerance
-                )
+            for t, seen in seen_of.items():
                 out = render(g, r.cameras[t])
                 hole = out.alpha.reshape(h, w) < 0.5
                 gt = r.images[t]
