@@ -68,6 +68,19 @@ def _relative_projection(K: Tensor, w2c: Tensor, nbr: Tensor) -> tuple[Tensor, T
     return A, b
 
 
+def _candidate_depths(depths: Tensor, v: int, hw: int) -> Tensor:
+    """[B,D] plane depths or [B,V,D,h,w] per-pixel depths -> [B,V',D,hw] (V' is 1 or V), the
+    shape the warp broadcasts against."""
+    if depths.ndim == 2:
+        return depths[:, None, :, None]  # [B,1,D,1]
+    if depths.ndim == 5 and depths.shape[1] == v and depths.shape[-2] * depths.shape[-1] == hw:
+        return depths.flatten(-2)  # [B,V,D,hw]
+    raise ValueError(
+        f"cost volume: depths must be [B,D] planes or [B,V={v},D,h,w] per pixel, got "
+        f"{list(depths.shape)}"
+    )
+
+
 def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: int) -> Tensor:
     """Sampling grid of neighbour ``nbr`` for every reference pixel and candidate.
 
@@ -75,13 +88,16 @@ def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: in
         K: [B,V,3,3] intrinsics at the h x w resolution.
         w2c: [B,V,4,4] world-to-camera.
         nbr: [B,V] index of the neighbour view for each reference view.
-        depths: [B,D] candidate depths (z along the reference optical axis).
+        depths: [B,D] candidate depths (z along the reference optical axis), the same planes for
+            every pixel; or [B,V,D,h,w], each pixel's own candidates (a cascade's band around a
+            first estimate).
     Returns:
         [B,V,D,h,w,2] normalised coordinates for grid_sample(align_corners=False); points
         behind (or on) the neighbour's image plane are sent to (-2, -2), outside the image,
         so they sample zeros.
     """
     A, b = _relative_projection(K, w2c, nbr)  # [B,V,3,3], [B,V,3]
+    z = _candidate_depths(depths, K.shape[1], h * w)  # [B,V',D,hw]
     ys, xs = torch.meshgrid(
         torch.arange(h, dtype=K.dtype, device=K.device) + 0.5,
         torch.arange(w, dtype=K.dtype, device=K.device) + 0.5,
@@ -89,11 +105,10 @@ def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: in
     )
     pix = torch.stack([xs, ys, torch.ones_like(xs)], dim=0).view(3, h * w)  # [3,hw]
     a = A @ pix  # [B,V,3,hw]
-    z = depths[:, None, :, None, None]  # [B,1,D,1,1]
-    p = z * a[:, :, None] + b[:, :, None, :, None]  # [B,V,D,3,hw]
+    p = z[:, :, :, None] * a[:, :, None] + b[:, :, None, :, None]  # [B,V,D,3,hw]
     depth_j = p[:, :, :, 2]  # [B,V,D,hw]
     # In front of camera j by a relative margin; the clamp keeps far-off points finite.
-    front = depth_j > 1e-6 * depths[:, None, :, None]
+    front = depth_j > 1e-6 * z
     zs = torch.where(front, depth_j, torch.ones_like(depth_j))
     u = (p[:, :, :, 0] / zs / w * 2 - 1).clamp(-2.0, 2.0)  # [B,V,D,hw]
     v = (p[:, :, :, 1] / zs / h * 2 - 1).clamp(-2.0, 2.0)
@@ -123,7 +138,7 @@ def plane_sweep_cost_volume(
         feats: [B,V,C,h,w] features of every view.
         K: [B,V,3,3] intrinsics at the feature resolution (see :func:`scale_intrinsics`).
         w2c: [B,V,4,4] world-to-camera.
-        depths: [B,D] candidate depths.
+        depths: [B,D] candidate depths, or [B,V,D,h,w] per pixel (see :func:`warp_grid`).
         neighbours: [B,V,k] views that each view is matched against (:func:`nearest_views`).
     Returns:
         [B,V,D,h,w] ``<F_i, F_j->i(d)> / sqrt(C)`` averaged over the k neighbours. With zero
@@ -131,7 +146,7 @@ def plane_sweep_cost_volume(
         (uninformative but finite); out-of-view samples correlate with zeros.
     """
     b, v, c, h, w = feats.shape
-    d = depths.shape[1]
+    d = depths.shape[-3 if depths.ndim == 5 else 1]
     bidx = torch.arange(b, device=feats.device)[:, None]  # [B,1]
     cost = feats.new_zeros(b, v, d, h, w)
     k = neighbours.shape[-1]

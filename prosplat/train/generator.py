@@ -266,6 +266,10 @@ class TrainConfig:
     # with a prosplat ``init`` without them: add frozen AlexNet relu1..relu<n> features to the
     # monocular branch through zero weights (prosplat.generator.grow.grow_alexnet); 0 = off
     grow_alexnet: int = 0
+    # with a prosplat ``init`` that has a fine cost volume and no cascade: add the 1/2-resolution
+    # band search with this many candidates, its correction starting at 0
+    # (prosplat.generator.grow.grow_cascade); 0 = off
+    grow_cascade: int = 0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -292,8 +296,9 @@ class TrainConfig:
             raise ValueError(f"stop_at must be >= 1, got {self.stop_at}")
         if self.target_scale < 1:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
-        if self.grow_fine_matching < 0:
-            raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
+        for name in ("grow_fine_matching", "grow_cascade"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("crop_prob", "frame_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -305,7 +310,7 @@ class TrainConfig:
             raise ValueError(
                 f"grow_alexnet must be 0-{MAX_ALEXNET_LAYERS}, got {self.grow_alexnet}"
             )
-        for name in ("grow_fine_matching", "grow_alexnet"):
+        for name in ("grow_fine_matching", "grow_alexnet", "grow_cascade"):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
 
@@ -653,7 +658,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         pipe = None
     else:
         init_state = None
-        if cfg.grow_fine_matching or cfg.grow_alexnet:
+        if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_cascade:
             model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
@@ -858,11 +863,11 @@ def _init_weights(cfg: TrainConfig):
 
 def _grown_init(cfg: TrainConfig):
     """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
-    channels and then by ``cfg.grow_alexnet`` AlexNet layers; on a resume only the config is
-    used (the checkpoint holds the weights)."""
+    channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by a ``cfg.grow_cascade``-deep
+    band search; on a resume only the config is used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
-    from prosplat.generator.grow import grow_alexnet, grow_fine_matching
+    from prosplat.generator.grow import grow_alexnet, grow_cascade, grow_fine_matching
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
     if "config" not in meta:
@@ -872,6 +877,8 @@ def _grown_init(cfg: TrainConfig):
         config, state = grow_fine_matching(config, state, cfg.grow_fine_matching)
     if cfg.grow_alexnet:
         config, state = grow_alexnet(config, state, cfg.grow_alexnet)
+    if cfg.grow_cascade:
+        config, state = grow_cascade(config, state, cfg.grow_cascade)
     return config, state
 
 
