@@ -500,6 +500,16 @@ def test_grow_cascade_after_fine_matching_starts_from_the_init(dataset, tmp_path
         )
         b = grown(images, K, w2c, scene["near"][None], scene["far"][None]).depths
     torch.testing.assert_close(b, a, atol=1e-4, rtol=1e-4)
+    # --grown-lr-scale: the added weights learn at lr x scale, the trained ones at lr (~0 here)
+    fast = dict(grow, grown_lr_scale=1e9)
+    train(TrainConfig(**fast, out=str(tmp_path / "f"), steps=1, save_every=1), progress=False)
+    tuned = ProSplat.from_pretrained(tmp_path / "f" / WEIGHTS_NAME).generator.state_dict()
+    assert tuned["cascade.logits.weight"].abs().max() > 1e-4  # zero at the start
+    for name, value in grown.state_dict().items():
+        if not name.startswith(("cascade.", "encoder.fine", "depth_head.fine")):
+            torch.testing.assert_close(tuned[name], value, atol=1e-9, rtol=0, msg=name)
+    with pytest.raises(ValueError, match="grown_lr_scale"):
+        TrainConfig(**fast | {"grown_lr_scale": 0.0}, out="x")
     with pytest.raises(ValueError, match="grow_cascade"):
         TrainConfig(**base, out="x", grow_cascade=5)
     with pytest.raises(ValueError, match="grow_cascade"):

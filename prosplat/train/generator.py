@@ -270,6 +270,9 @@ class TrainConfig:
     # band search with this many candidates, its correction starting at 0
     # (prosplat.generator.grow.grow_cascade); 0 = off
     grow_cascade: int = 0
+    # the learning rate of the parameters a --grow-* option adds, as a multiple of lr: their
+    # paths start closed at zero and would open no faster than the trained network moves
+    grown_lr_scale: float = 1.0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -302,6 +305,8 @@ class TrainConfig:
         for name in ("crop_prob", "frame_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not self.grown_lr_scale > 0:
+            raise ValueError(f"grown_lr_scale must be > 0, got {self.grown_lr_scale}")
         if not 0 <= self.ema < 1:
             raise ValueError(f"ema is a decay in [0, 1) (0: off), got {self.ema}")
         if self.frame_prob > 0 and not self.sizes:
@@ -657,15 +662,19 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         params = model.trainable_parameters()
         pipe = None
     else:
-        init_state = None
+        init_state, grown = None, set()
         if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_cascade:
-            model_config, init_state = _grown_init(cfg)
+            model_config, init_state, grown = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
         pipe = ProSplat(model_config or preset(cfg.config))
         model = pipe.generator.to(device).train()
         params = list(model.parameters())
-    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.AdamW(
+        _param_groups(model, grown, cfg.grown_lr_scale) if not heads else params,
+        lr=cfg.lr,
+        weight_decay=cfg.weight_decay,
+    )
     ckpt = load_checkpoint(out, map_location=device)  # every rank reads before rank 0 writes
     if ckpt is None:
         claim_run_folder(out, asdict(cfg), per_call=_PER_CALL, is_main=dist.is_main)
@@ -755,7 +764,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             if pipe is not None:  # the size the weights are for: the largest drawn, else the data's
                 pipe.trained_size = max(cfg.size_choices or (int(batch["input_images"].shape[-2]),))
             for group in opt.param_groups:
-                group["lr"] = lr_at(step, cfg)
+                group["lr"] = lr_at(step, cfg) * group.get("lr_scale", 1.0)
             output = ddp_model(*_model_inputs(batch))
             loss, parts = render_loss(output, batch, cfg, lpips_fn)
             opt.zero_grad(set_to_none=True)
@@ -861,10 +870,22 @@ def _init_weights(cfg: TrainConfig):
     return config, state
 
 
+def _param_groups(model, grown: set[str], scale: float) -> list[dict]:
+    """AdamW's parameter groups: one, or (``scale`` != 1 and weights grown) the grown
+    parameters apart with ``lr_scale`` (read by the step's learning-rate update)."""
+    named = list(model.named_parameters())
+    new = [p for n, p in named if n in grown]
+    if scale == 1.0 or not new:
+        return [{"params": [p for _, p in named]}]
+    old = [p for n, p in named if n not in grown]
+    return [{"params": old}, {"params": new, "lr_scale": scale}]
+
+
 def _grown_init(cfg: TrainConfig):
-    """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
-    channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by a ``cfg.grow_cascade``-deep
-    band search; on a resume only the config is used (the checkpoint holds the weights)."""
+    """(config, weights, names of the weights the growing added) of ``cfg.init`` grown by
+    ``cfg.grow_fine_matching`` fine-matching channels, then by ``cfg.grow_alexnet`` AlexNet
+    layers, then by a ``cfg.grow_cascade``-deep band search; on a resume only the config and
+    the names are used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
     from prosplat.generator.grow import grow_alexnet, grow_cascade, grow_fine_matching
@@ -873,13 +894,14 @@ def _grown_init(cfg: TrainConfig):
     if "config" not in meta:
         raise ValueError(f"{cfg.init} has no generator config in its metadata to grow")
     config = GeneratorConfig.from_json(meta["config"])
+    before = set(state)
     if cfg.grow_fine_matching:
         config, state = grow_fine_matching(config, state, cfg.grow_fine_matching)
     if cfg.grow_alexnet:
         config, state = grow_alexnet(config, state, cfg.grow_alexnet)
     if cfg.grow_cascade:
         config, state = grow_cascade(config, state, cfg.grow_cascade)
-    return config, state
+    return config, state, set(state) - before
 
 
 def _save_heads(model, opt, step: int, out: Path, init: str) -> None:
