@@ -658,25 +658,6 @@ def build_parser() -> argparse.ArgumentParser:
         "LPIPS (N 1-3; copied into the weights file) to the monocular branch, entering through "
         "zero weights so training starts from the init's exact outputs (default 0: off)",
     )
-    tg.add_argument(
-        "--grow-cascade",
-        type=int,
-        default=defaults.grow_cascade,
-        metavar="N",
-        help="with --init prosplat weights that have a fine cost volume: add a second search of "
-        "N depths at 1/2 resolution in a narrow band around the first depth estimate, its "
-        "correction starting at 0 so training starts from the init's exact outputs (default "
-        "0: off)",
-    )
-    tg.add_argument(
-        "--grown-lr-scale",
-        type=float,
-        default=defaults.grown_lr_scale,
-        metavar="X",
-        help="learning rate of the weights a --grow-* option adds, as a multiple of --lr: they "
-        "start at zero and would otherwise open no faster than the trained network moves "
-        "(default 1)",
-    )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)
     from prosplat.cli_improve import add_eval_parser, add_train_parsers

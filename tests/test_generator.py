@@ -359,6 +359,29 @@ def test_warp_grid_matches_camera_projection():
         assert torch.allclose(grid[0, 0, m].double(), expect, atol=1e-4)
 
 
+def test_per_pixel_depths_warp_exactly_as_the_planes_they_pick():
+    """warp_grid with [B,V,D,h,w] depths (each pixel its own candidates, as a band search
+    around a first estimate needs) lands where the same depth's plane sends that pixel."""
+    w, h, d = 12, 8, 5
+    ref = Camera.from_intrinsics(11.0, 11.0, 6.0, 4.0, w, h)
+    nb = Camera.look_at((0.5, 0.1, 0.0), (0.0, 0.0, 4.0), (0, -1, 0), 11.0, w, h)
+    K = torch.stack([ref.K, nb.K]).float()[None]
+    w2c = torch.stack([ref.world_to_cam, nb.world_to_cam]).float()[None]
+    planes = inverse_depth_candidates(torch.tensor([NEAR]), torch.tensor([FAR]), d)  # [1,D]
+    nbr = torch.tensor([[1, 0]])
+    by_plane = warp_grid(K, w2c, nbr, planes, h, w)  # [1,2,D,h,w,2]
+    rows = torch.arange(h)[:, None].expand(h, w)
+    pick = (torch.arange(d)[:, None, None] + rows) % d  # [D,h,w]: pixel row r shifts by r
+    per_pixel = planes[0][pick][None, None].expand(1, 2, d, h, w)  # [1,2,D,h,w]
+    grid = warp_grid(K, w2c, nbr, per_pixel, h, w)
+    expect = torch.gather(by_plane, 2, pick[None, None, ..., None].expand(1, 2, d, h, w, 2))
+    torch.testing.assert_close(grid, expect, atol=1e-6, rtol=0)
+    cost = plane_sweep_cost_volume(torch.randn(1, 2, 4, h, w), K, w2c, per_pixel, nbr[..., None])
+    assert cost.shape == (1, 2, d, h, w)
+    with pytest.raises(ValueError, match="per pixel"):
+        warp_grid(K, w2c, nbr, per_pixel[:, :1], h, w)
+
+
 def test_cost_volume_argmax_is_the_candidate_nearest_the_plane():
     """Through Generator.cost_volume: cameras at full resolution (4x), features at 1/4, so the
     intrinsics scaling to the feature resolution is part of what is checked."""

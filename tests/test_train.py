@@ -480,42 +480,6 @@ def test_grow_fine_matching_starts_from_the_init_and_resumes(dataset, tmp_path):
         torch.testing.assert_close(tuned.state_dict()[name], value, atol=1e-9, rtol=0, msg=name)
 
 
-def test_grow_cascade_after_fine_matching_starts_from_the_init(dataset, tmp_path):
-    """--grow-fine-matching and --grow-cascade in one run: the saved network has both and, at a
-    learning rate of ~0, predicts the init's depth; a cascade without an init is refused."""
-    torch.manual_seed(0)
-    start = ProSplat().save(tmp_path / "start.safetensors")
-    base = dict(data=str(dataset.parent / "fixed"), targets=1, inputs=2, lpips_weight=0.0, warmup=1)
-    grow = dict(**base, init=str(start), grow_fine_matching=4, grow_cascade=5, lr=1e-12)
-    train(TrainConfig(**grow, out=str(tmp_path / "g"), steps=1, save_every=1), progress=False)
-    grown = ProSplat.from_pretrained(tmp_path / "g" / WEIGHTS_NAME).generator.eval()
-    assert grown.config.cascade_candidates == 5 and grown.config.fine_matching_channels == 4
-    scene = SceneDataset(str(dataset.parent / "fixed"), n_inputs=2)[0]
-    images, K, w2c = scene["input_images"][None], scene["input_K"][None], scene["input_w2c"][None]
-    with torch.no_grad():
-        a = (
-            ProSplat.from_pretrained(start)
-            .generator.eval()(images, K, w2c, scene["near"][None], scene["far"][None])
-            .depths
-        )
-        b = grown(images, K, w2c, scene["near"][None], scene["far"][None]).depths
-    torch.testing.assert_close(b, a, atol=1e-4, rtol=1e-4)
-    # --grown-lr-scale: the added weights learn at lr x scale, the trained ones at lr (~0 here)
-    fast = dict(grow, grown_lr_scale=1e9)
-    train(TrainConfig(**fast, out=str(tmp_path / "f"), steps=1, save_every=1), progress=False)
-    tuned = ProSplat.from_pretrained(tmp_path / "f" / WEIGHTS_NAME).generator.state_dict()
-    assert tuned["cascade.logits.weight"].abs().max() > 1e-4  # zero at the start
-    for name, value in grown.state_dict().items():
-        if not name.startswith(("cascade.", "encoder.fine", "depth_head.fine")):
-            torch.testing.assert_close(tuned[name], value, atol=1e-9, rtol=0, msg=name)
-    with pytest.raises(ValueError, match="grown_lr_scale"):
-        TrainConfig(**fast | {"grown_lr_scale": 0.0}, out="x")
-    with pytest.raises(ValueError, match="grow_cascade"):
-        TrainConfig(**base, out="x", grow_cascade=5)
-    with pytest.raises(ValueError, match="grow_cascade"):
-        TrainConfig(**base, out="x", init=str(start), grow_cascade=-1)
-
-
 def test_render_loss_fused_projection_matches_the_torch_projection(dataset):
     """Training renders with the fused C++ projection (faster); the loss and every gradient
     are those of the torch projection, its reference twin, to float32 precision."""

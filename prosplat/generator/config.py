@@ -39,10 +39,6 @@ class GeneratorConfig:
             second plane-sweep cost volume at 1/2 resolution (over the same candidates) to the
             depth head, so that a wide baseline, whose disparities span many 1/4-resolution
             cells, still finds a sharp peak. 0 (v1 weights) leaves it out.
-        cascade_candidates: > 0 adds a second, narrow search at 1/2 resolution: this many
-            depths within two coarse candidate steps of the depth head's estimate, correlated
-            with the fine matching features, correct it (:mod:`prosplat.generator.cascade`;
-            needs ``fine_matching_channels``). 0 (v1-v12 weights) leaves it out.
         mono_channels: channels of the monocular branch (stands in for DepthSplat's ViT).
         mono_blocks: residual blocks in the monocular branch (dilations cycle 1, 2, 4).
         alexnet_layers: 1-3 adds AlexNet's relu1..relu<n> maps (the LPIPS backbone, frozen,
@@ -69,7 +65,6 @@ class GeneratorConfig:
     attention_mlp_ratio: int = 2
     cost_volume_views: int = 3
     fine_matching_channels: int = 0
-    cascade_candidates: int = 0
     mono_channels: int = 32
     mono_blocks: int = 3
     alexnet_layers: int = 0
@@ -102,16 +97,6 @@ class GeneratorConfig:
         if self.attention_layers < 0 or self.mono_blocks < 0 or self.fine_matching_channels < 0:
             raise ValueError(
                 "GeneratorConfig.attention_layers, mono_blocks and fine_matching_channels must be >= 0"
-            )
-        if self.cascade_candidates == 1 or self.cascade_candidates < 0:
-            raise ValueError(
-                f"GeneratorConfig.cascade_candidates must be 0 (off) or >= 2, got "
-                f"{self.cascade_candidates}"
-            )
-        if self.cascade_candidates and not self.fine_matching_channels:
-            raise ValueError(
-                "GeneratorConfig.cascade_candidates searches the fine matching features: "
-                "it needs fine_matching_channels > 0"
             )
         if not 0 <= self.alexnet_layers <= MAX_ALEXNET_LAYERS:
             raise ValueError(

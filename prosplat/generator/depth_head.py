@@ -114,19 +114,16 @@ class DepthRefiner(nn.Module):
             self.delta.bias.zero_()
 
     def forward(
-        self, image: Tensor, t: Tensor, conf: Tensor, hidden: Tensor, delta: Tensor | None = None
+        self, image: Tensor, t: Tensor, conf: Tensor, hidden: Tensor
     ) -> tuple[Tensor, Tensor, Tensor]:
-        """image [N,3,H,W] in [-1,1]; t, conf [N,1,h,w]; hidden [N,U0,h,w]; delta [N,1,h',w']
-        or None, a correction of t at any resolution (the cascade's, at 1/2) added after both
-        are upsampled -> t [N,1,H,W] in (0,1), confidence [N,1,H,W], features [N,R,H,W]."""
+        """image [N,3,H,W] in [-1,1]; t, conf [N,1,h,w]; hidden [N,U0,h,w] ->
+        t [N,1,H,W] in (0,1), confidence [N,1,H,W], features [N,R,H,W]."""
         size = image.shape[-2:]
 
         def up(x: Tensor) -> Tensor:
             return F.interpolate(x, size=size, mode="bilinear", align_corners=False)
 
         t_up, conf_up = up(t), up(conf)  # [N,1,H,W] each
-        if delta is not None:
-            t_up = t_up + up(delta)
         f_up = up(self.reduce(hidden))  # [N,R,H,W]
         feat = self.body(torch.cat([image, t_up, conf_up, f_up], dim=1))  # [N,R,H,W]
         eps = 1e-4  # t of exactly 0 or 1 (all mass on the end candidate) has an infinite logit

@@ -2,8 +2,7 @@
 
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
 does not. When a change adds a module (the 1/2-resolution cost volume of
-``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``; the 1/2-resolution
-band search of ``cascade_candidates``), the trained
+``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``), the trained
 weights are copied into the larger network and the new module enters through weights that
 start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
 only has to learn what the new input adds.
@@ -104,33 +103,4 @@ def grow_alexnet(
             out[key] = state[key].clone()
         else:
             out[key] = fresh  # the projection's own init (last layer zero)
-    return grown_config, out
-
-
-def grow_cascade(
-    config: GeneratorConfig, state: dict[str, Tensor], candidates: int
-) -> tuple[GeneratorConfig, dict[str, Tensor]]:
-    """Weights of ``config`` (with a fine cost volume, without a cascade) -> the same network
-    with a ``candidates``-deep 1/2-resolution band search (:mod:`prosplat.generator.cascade`),
-    and a state dict that gives identical outputs: the stage's own init closes it (last conv
-    and correlation gain zero, so its correction is 0); its other layers keep a fresh random
-    init (seeded by the caller) so that gradients flow into them once it opens."""
-    if config.cascade_candidates:
-        raise ValueError(
-            "grow_cascade: the weights already have a cascade "
-            f"(cascade_candidates={config.cascade_candidates})"
-        )
-    grown_config = replace(config, cascade_candidates=candidates)  # validates
-    grown = Generator(grown_config).state_dict()
-    missing = set(state) - set(grown)
-    if missing:
-        raise ValueError(f"grow_cascade: unexpected weights {sorted(missing)[:3]}")
-    out: dict[str, Tensor] = {}
-    for key, fresh in grown.items():
-        if key.startswith("cascade."):
-            out[key] = fresh
-        elif key not in state:
-            raise ValueError(f"grow_cascade: the weights lack {key}")
-        else:
-            out[key] = state[key].clone()
     return grown_config, out

@@ -13,7 +13,6 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from prosplat.generator.adapter import GaussianAdapter
-from prosplat.generator.cascade import CascadeStage
 from prosplat.generator.config import SIZE_MULTIPLE, TINY, GeneratorConfig
 from prosplat.generator.cost_volume import (
     inverse_depth_candidates,
@@ -68,16 +67,6 @@ class Generator(nn.Module):
             c.feature_channels,
             c.unet_channels,
             fine_cost=c.fine_matching_channels > 0,
-        )
-        self.cascade = (
-            CascadeStage(
-                c.cascade_candidates,
-                c.num_depth_candidates,
-                c.unet_channels[0],
-                c.fine_matching_channels,
-            )
-            if c.cascade_candidates
-            else None
         )
         self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels)
         self.adapter = GaussianAdapter(
@@ -179,34 +168,12 @@ class Generator(nn.Module):
         ``K [B,V,3,3]`` is for the full ``image_size (H, W)`` and is scaled here to the feature
         resolution; candidates are uniform in inverse depth over [near, far] ([B] each).
         Returns [B,V,D,h,w]."""
-        candidates = inverse_depth_candidates(near, far, self.config.num_depth_candidates)  # [B,D]
-        return self._correlate(feats, K, w2c, candidates, image_size)
-
-    def _correlate(
-        self, feats: Tensor, K: Tensor, w2c: Tensor, depths: Tensor, image_size
-    ) -> Tensor:
-        """feats [B,V,C,h,w] against each view's nearest views at ``depths`` ([B,D] planes or
-        [B,V,D,h,w] per pixel); K for the full ``image_size`` -> [B,V,D,h,w]."""
         h, w = image_size
         hf, wf = feats.shape[-2:]
         K_feat = scale_intrinsics(K, wf / w, hf / h)  # [B,V,3,3] at feature resolution
         neighbours = nearest_views(w2c, self.config.cost_volume_views)  # [B,V,k]
-        return plane_sweep_cost_volume(feats, K_feat, w2c, depths, neighbours)
-
-    def _cascade_delta(
-        self, t: Tensor, hidden: Tensor, fine: Tensor, K: Tensor, w2c: Tensor, near, far, image_size
-    ) -> Tensor:
-        """The cascade's correction of t at 1/2 resolution (:mod:`prosplat.generator.cascade`):
-        t [BV,1,h,w] and hidden [BV,U0,h,w] from the depth head, fine [B,V,Cf,2h,2w] ->
-        [BV,1,2h,2w]."""
-        b, v = fine.shape[:2]
-        t_half = F.interpolate(t, size=fine.shape[-2:], mode="bilinear", align_corners=False)
-        band = self.cascade.band(t_half)  # [BV,Dc,2h,2w] in t
-        inv_near = (1.0 / near).repeat_interleave(v)[:, None, None, None]  # [BV,1,1,1]
-        inv_far = (1.0 / far).repeat_interleave(v)[:, None, None, None]
-        depths = 1.0 / (inv_far + band * (inv_near - inv_far))  # [BV,Dc,2h,2w]
-        cost = self._correlate(fine, K, w2c, depths.view(b, v, *depths.shape[1:]), image_size)
-        return self.cascade(cost.flatten(0, 1), hidden, fine.flatten(0, 1))  # [BV,1,2h,2w]
+        candidates = inverse_depth_candidates(near, far, self.config.num_depth_candidates)  # [B,D]
+        return plane_sweep_cost_volume(feats, K_feat, w2c, candidates, neighbours)
 
     def _match_images(self, x: Tensor, match_size: tuple[int, int]) -> Tensor:
         """x [B,V,3,H,W] -> [B,V,3,Hm,Wm], antialiased bilinear (as :func:`resize_views`)."""
@@ -261,11 +228,8 @@ class Generator(nn.Module):
         t, conf, hidden = self.depth_head(
             cost.flatten(0, 1), mono, feats.flatten(0, 1), fine_cost
         )  # [BV,1,Hm/4,Wm/4] x2, [BV,U0,Hm/4,Wm/4]
-        delta = None
-        if self.cascade is not None:  # config validation: only with a fine cost volume
-            delta = self._cascade_delta(t, hidden, fine, K, w2c, near, far, (h, w))
         t, conf, rfeat = self.refiner(
-            xm.flatten(0, 1), t, conf, hidden, delta
+            xm.flatten(0, 1), t, conf, hidden
         )  # [BV,1,Hm,Wm] x2, [BV,R,Hm,Wm]
         if tuple(t.shape[-2:]) != (h, w):  # matched smaller: to the inputs' size
             maps = F.interpolate(

@@ -266,13 +266,6 @@ class TrainConfig:
     # with a prosplat ``init`` without them: add frozen AlexNet relu1..relu<n> features to the
     # monocular branch through zero weights (prosplat.generator.grow.grow_alexnet); 0 = off
     grow_alexnet: int = 0
-    # with a prosplat ``init`` that has a fine cost volume and no cascade: add the 1/2-resolution
-    # band search with this many candidates, its correction starting at 0
-    # (prosplat.generator.grow.grow_cascade); 0 = off
-    grow_cascade: int = 0
-    # the learning rate of the parameters a --grow-* option adds, as a multiple of lr: their
-    # paths start closed at zero and would open no faster than the trained network moves
-    grown_lr_scale: float = 1.0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -299,14 +292,11 @@ class TrainConfig:
             raise ValueError(f"stop_at must be >= 1, got {self.stop_at}")
         if self.target_scale < 1:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
-        for name in ("grow_fine_matching", "grow_cascade"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.grow_fine_matching < 0:
+            raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
         for name in ("crop_prob", "frame_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        if not self.grown_lr_scale > 0:
-            raise ValueError(f"grown_lr_scale must be > 0, got {self.grown_lr_scale}")
         if not 0 <= self.ema < 1:
             raise ValueError(f"ema is a decay in [0, 1) (0: off), got {self.ema}")
         if self.frame_prob > 0 and not self.sizes:
@@ -315,7 +305,7 @@ class TrainConfig:
             raise ValueError(
                 f"grow_alexnet must be 0-{MAX_ALEXNET_LAYERS}, got {self.grow_alexnet}"
             )
-        for name in ("grow_fine_matching", "grow_alexnet", "grow_cascade"):
+        for name in ("grow_fine_matching", "grow_alexnet"):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
 
@@ -662,19 +652,15 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         params = model.trainable_parameters()
         pipe = None
     else:
-        init_state, grown = None, set()
-        if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_cascade:
-            model_config, init_state, grown = _grown_init(cfg)
+        init_state = None
+        if cfg.grow_fine_matching or cfg.grow_alexnet:
+            model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
         pipe = ProSplat(model_config or preset(cfg.config))
         model = pipe.generator.to(device).train()
         params = list(model.parameters())
-    opt = torch.optim.AdamW(
-        _param_groups(model, grown, cfg.grown_lr_scale) if not heads else params,
-        lr=cfg.lr,
-        weight_decay=cfg.weight_decay,
-    )
+    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     ckpt = load_checkpoint(out, map_location=device)  # every rank reads before rank 0 writes
     if ckpt is None:
         claim_run_folder(out, asdict(cfg), per_call=_PER_CALL, is_main=dist.is_main)
@@ -764,7 +750,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             if pipe is not None:  # the size the weights are for: the largest drawn, else the data's
                 pipe.trained_size = max(cfg.size_choices or (int(batch["input_images"].shape[-2]),))
             for group in opt.param_groups:
-                group["lr"] = lr_at(step, cfg) * group.get("lr_scale", 1.0)
+                group["lr"] = lr_at(step, cfg)
             output = ddp_model(*_model_inputs(batch))
             loss, parts = render_loss(output, batch, cfg, lpips_fn)
             opt.zero_grad(set_to_none=True)
@@ -870,38 +856,23 @@ def _init_weights(cfg: TrainConfig):
     return config, state
 
 
-def _param_groups(model, grown: set[str], scale: float) -> list[dict]:
-    """AdamW's parameter groups: one, or (``scale`` != 1 and weights grown) the grown
-    parameters apart with ``lr_scale`` (read by the step's learning-rate update)."""
-    named = list(model.named_parameters())
-    new = [p for n, p in named if n in grown]
-    if scale == 1.0 or not new:
-        return [{"params": [p for _, p in named]}]
-    old = [p for n, p in named if n not in grown]
-    return [{"params": old}, {"params": new, "lr_scale": scale}]
-
-
 def _grown_init(cfg: TrainConfig):
-    """(config, weights, names of the weights the growing added) of ``cfg.init`` grown by
-    ``cfg.grow_fine_matching`` fine-matching channels, then by ``cfg.grow_alexnet`` AlexNet
-    layers, then by a ``cfg.grow_cascade``-deep band search; on a resume only the config and
-    the names are used (the checkpoint holds the weights)."""
+    """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
+    channels and then by ``cfg.grow_alexnet`` AlexNet layers; on a resume only the config is
+    used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
-    from prosplat.generator.grow import grow_alexnet, grow_cascade, grow_fine_matching
+    from prosplat.generator.grow import grow_alexnet, grow_fine_matching
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
     if "config" not in meta:
         raise ValueError(f"{cfg.init} has no generator config in its metadata to grow")
     config = GeneratorConfig.from_json(meta["config"])
-    before = set(state)
     if cfg.grow_fine_matching:
         config, state = grow_fine_matching(config, state, cfg.grow_fine_matching)
     if cfg.grow_alexnet:
         config, state = grow_alexnet(config, state, cfg.grow_alexnet)
-    if cfg.grow_cascade:
-        config, state = grow_cascade(config, state, cfg.grow_cascade)
-    return config, state, set(state) - before
+    return config, state
 
 
 def _save_heads(model, opt, step: int, out: Path, init: str) -> None:
