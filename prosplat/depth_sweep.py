@@ -74,13 +74,16 @@ class DepthSweepOptions:
             one other view votes, and on the 24 test scenes at 64 px the sweep gained nothing
             there (+0.02 dB enhanced, LPIPS +0.002; 6 views: +0.22 dB), so it saves the time.
         scale_span, scale_candidates: the scene-wide factors :func:`scale_search` tries run
-            from ``exp(-scale_span)`` to ``exp(scale_span)``, evenly in log (9 at 0.2: 5 %
-            apart); fewer than 2 candidates turn the search off.
+            from ``exp(-scale_span)`` to ``exp(scale_span)``, evenly in log (5 at 0.2: 10 %
+            apart; 9 did no better on the validation or test scenes and cost 1.6-1.8x the
+            search, BENCHMARKS "The depth sweep's scene-wide factor"); fewer than 2
+            candidates turn the search off.
         scale_height: the search renders and compares the views at most this high (the
             Gaussians are the same; only where they land matters, not detail).
 
     The defaults are the best of those tried on the 8 validation scenes (data/val128) at 64
-    and 128 px with generator v7 and stage 2 v16 (BENCHMARKS.md, "Depth sweep").
+    and 128 px with generator v7 and stage 2 v16 (BENCHMARKS.md, "Depth sweep"); the factor
+    count with generator v12 and stage 2 v19.
     """
 
     span: float = 0.3
@@ -91,7 +94,7 @@ class DepthSweepOptions:
     max_height: int | None = 128
     min_views: int = 3
     scale_span: float = 0.2
-    scale_candidates: int = 9
+    scale_candidates: int = 5
     scale_height: int = 64
 
     def searches_scale(self, n_views: int) -> bool:

@@ -254,11 +254,15 @@ def test_snap_output_applies_the_scene_wide_factor(views):
     """With the local sweep taking nothing (min_confidence just under 1), snap_output moves the
     depth by the search's factor alone; with ``scale_candidates=0`` it leaves it."""
     cams, images, depths = views
-    start = depths * 0.9
+    from prosplat.budget import prune_pixel_aligned
+
+    start = depths * 0.85
     out = output_from_images(cams, images, start)
     local_off = DepthSweepOptions(min_confidence=0.999)
     snapped = snap_output(out, images, cams, local_off)
-    factor, _ = scale_search(out, images, cams, local_off)
+    # scored as snap_output scores it: on the Gaussians the budget keeps
+    _, keep, _ = prune_pixel_aligned(out.gaussians(0), out.depths[0], cams)
+    factor, _ = scale_search(out, images, cams, local_off, keep=keep)
     assert factor > 1.05
     assert torch.allclose(snapped.depths[0], start * factor, rtol=1e-5)
     kept = snap_output(out, images, cams, DepthSweepOptions(min_confidence=0.999,
