@@ -31,25 +31,26 @@ from prosplat.pipeline import ProSplat
 
 
 class Captured:
-    """The generator's 1/4-resolution t and its matching features from one forward pass,
-    caught on the way by wrapping two submodules' forward in the instance (not the class)."""
+    """The generator's 1/4-resolution t and its matching features from each forward pass,
+    caught by forward hooks on the depth head and the encoder (:meth:`close` removes them)."""
 
     def __init__(self, generator) -> None:
         self.maps: dict[str, torch.Tensor] = {}
-        head, encoder = generator.depth_head, generator.encoder
-        head_forward, encoder_forward = head.forward, encoder.forward
 
-        def head_hook(*args, **kwargs):
-            out = head_forward(*args, **kwargs)
+        def head_hook(module, inputs, out) -> None:
             self.maps["t"] = out[0]  # [V,1,h/4,w/4]
-            return out
 
-        def encoder_hook(x):
-            feats, fine = encoder_forward(x)
-            self.maps["feats"], self.maps["fine"] = feats, fine  # [1,V,C,h/4,..], [1,V,Cf,h/2,..]
-            return feats, fine
+        def encoder_hook(module, inputs, out) -> None:
+            self.maps["feats"], self.maps["fine"] = out  # [1,V,C,h/4,..], [1,V,Cf,h/2,..]
 
-        head.forward, encoder.forward = head_hook, encoder_hook
+        self._handles = [
+            generator.depth_head.register_forward_hook(head_hook),
+            generator.encoder.register_forward_hook(encoder_hook),
+        ]
+
+    def close(self) -> None:
+        for handle in self._handles:
+            handle.remove()
 
 
 def band_scores(

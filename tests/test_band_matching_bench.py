@@ -48,4 +48,8 @@ def test_captured_holds_the_depth_heads_t_and_the_matching_features():
     assert captured.maps["t"].shape == (2, 1, 8, 8)
     assert captured.maps["feats"].shape == (1, 2, 8, 8, 8)
     assert captured.maps["fine"].shape == (1, 2, 4, 16, 16)
-    assert type(g).forward is Generator.forward  # the class is left alone
+    captured.close()
+    captured.maps.clear()
+    with torch.no_grad():
+        g(torch.rand(1, 2, 3, 32, 32), K, w2c, 1.0, 10.0)
+    assert not captured.maps  # the hooks are gone
