@@ -95,49 +95,52 @@ def main() -> None:
     captured = Captured(generator)
     coarse_steps = generator.config.num_depth_candidates - 1
     ds = SceneDataset(args.data, n_inputs=args.views)
-    rng = torch.Generator().manual_seed(0)
     print(f"{len(ds)} scenes of {args.data}, {args.views} inputs, {args.candidates} candidates")
     print(
         "| px | band (coarse steps) | truth in band | estimate | fine | 1/4 upsampled | both | random |"
     )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for size in args.sizes:
-        for steps in args.band_steps:
-            offsets = torch.linspace(-steps, steps, args.candidates) / coarse_steps  # [Dc]
-            rows: dict[str, list[float]] = {}
-            for i in range(len(ds)):
-                s = ds[i]
-                scale = size / s["input_images"].shape[-1]
-                images = F.interpolate(
-                    s["input_images"], size=(size, size), mode="bilinear", antialias=True
-                )
-                near, far = float(s["near"]), float(s["far"])
-                w2c = s["input_w2c"][None]
+        # per band width: its rng (the random column) and each scene's row
+        rngs = {steps: torch.Generator().manual_seed(0) for steps in args.band_steps}
+        rows: dict[float, dict[str, list[float]]] = {steps: {} for steps in args.band_steps}
+        for i in range(len(ds)):
+            s = ds[i]
+            native = s["input_images"].shape[-1]  # the data's square size, K's pixels
+            half = size // 2
+            images = F.interpolate(
+                s["input_images"], size=(size, size), mode="bilinear", antialias=True
+            )
+            near, far = float(s["near"]), float(s["far"])
+            w2c = s["input_w2c"][None]
+            K_half = scale_intrinsics(s["input_K"], half / native, half / native)[None]
+            nbr = nearest_views(w2c, generator.config.cost_volume_views)
+            truth = s["input_depths"][:, None]  # [V,1,H,W], 0 where nothing was hit
+            inv = F.interpolate(1 / truth.clamp(min=1e-6), size=(half, half), mode="area")
+            covered = F.interpolate((truth > 0).float(), size=(half, half), mode="area")
+            t_true = (inv - 1 / far) / (1 / near - 1 / far)  # [V,1,h/2,w/2]
+            with torch.no_grad():  # once per scene and size: every band width reads its maps
+                generator(images[None], scale_intrinsics(s["input_K"], size / native,
+                          size / native)[None], w2c, near, far)  # fmt: skip
+                t = F.interpolate(captured.maps["t"], size=(half, half), mode="bilinear")
+                up = F.interpolate(captured.maps["feats"][0], size=(half, half), mode="bilinear")
+            for steps in args.band_steps:
+                offsets = torch.linspace(-steps, steps, args.candidates) / coarse_steps  # [Dc]
+                band = (t + offsets[None, :, None, None]).clamp(1e-4, 1 - 1e-4)  # [V,Dc,..]
+                depths = 1 / (1 / far + band * (1 / near - 1 / far))
                 with torch.no_grad():
-                    generator(images[None], scale_intrinsics(s["input_K"], scale, scale)[None],
-                              w2c, near, far)  # fmt: skip
-                    half = size // 2
-                    t = F.interpolate(captured.maps["t"], size=(half, half), mode="bilinear")
-                    band = (t + offsets[None, :, None, None]).clamp(1e-4, 1 - 1e-4)  # [V,Dc,..]
-                    depths = 1 / (1 / far + band * (1 / near - 1 / far))
-                    truth = s["input_depths"][:, None]  # [V,1,H,W], 0 where nothing was hit
-                    inv = F.interpolate(1 / truth.clamp(min=1e-6), size=(half, half), mode="area")
-                    covered = F.interpolate((truth > 0).float(), size=(half, half), mode="area")
-                    K_half = scale_intrinsics(s["input_K"], half / 128, half / 128)[None]
-                    nbr = nearest_views(w2c, generator.config.cost_volume_views)
-                    up = F.interpolate(
-                        captured.maps["feats"][0], size=(half, half), mode="bilinear"
-                    )
                     fine = plane_sweep_cost_volume(
                         captured.maps["fine"], K_half, w2c, depths[None], nbr
-                    )
-                    coarse = plane_sweep_cost_volume(up[None], K_half, w2c, depths[None], nbr)
-                costs = {"fine": fine[0], "up": coarse[0], "both": fine[0] + coarse[0]}
-                t_true = (inv - 1 / far) / (1 / near - 1 / far)
-                row = band_scores(t, t_true, covered, band, costs, steps / coarse_steps, rng)
+                    )[0]
+                    coarse = plane_sweep_cost_volume(up[None], K_half, w2c, depths[None], nbr)[0]
+                costs = {"fine": fine, "up": coarse, "both": fine + coarse}
+                row = band_scores(
+                    t, t_true, covered, band, costs, steps / coarse_steps, rngs[steps]
+                )
                 for key, value in row.items():
-                    rows.setdefault(key, []).append(value)
-            mean = {k: sum(v) / len(v) for k, v in rows.items()}
+                    rows[steps].setdefault(key, []).append(value)
+        for steps in args.band_steps:
+            mean = {k: sum(v) / len(v) for k, v in rows[steps].items()}
             print(
                 f"| {size} | ±{steps:g} | {mean['in band']:.0%} | {mean['estimate']:.4f} | "
                 f"{mean['fine']:.4f} | {mean['up']:.4f} | {mean['both']:.4f} | "
