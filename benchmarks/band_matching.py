@@ -120,8 +120,8 @@ def main() -> None:
             covered = F.interpolate((truth > 0).float(), size=(half, half), mode="area")
             t_true = (inv - 1 / far) / (1 / near - 1 / far)  # [V,1,h/2,w/2]
             with torch.no_grad():  # once per scene and size: every band width reads its maps
-                generator(images[None], scale_intrinsics(s["input_K"], size / native,
-                          size / native)[None], w2c, near, far)  # fmt: skip
+                K_in = scale_intrinsics(s["input_K"], size / native, size / native)[None]
+                generator(images[None], K_in, w2c, near, far)
                 t = F.interpolate(captured.maps["t"], size=(half, half), mode="bilinear")
                 up = F.interpolate(captured.maps["feats"][0], size=(half, half), mode="bilinear")
             for steps in args.band_steps:
