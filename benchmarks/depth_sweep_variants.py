@@ -42,9 +42,11 @@ VARIANTS: dict[str, DepthSweepOptions] = {
     "smooth .03 c0.2 span .5": DepthSweepOptions(
         smooth=0.03, min_confidence=0.2, span=0.5, candidates=41
     ),
-    # the scene-wide factor search (scale_search), the sweep's dearest part
+    # the scene-wide factor search (scale_search), the sweep's dearest part; counts spelled
+    # out, so a variant keeps its meaning when the default moves (9 until 2026-11-27, then 5)
     "no scale": DepthSweepOptions(scale_candidates=0),
-    "scale at 32 px": DepthSweepOptions(scale_height=32),
+    "scale 9": DepthSweepOptions(scale_candidates=9),
+    "scale 9 at 32 px": DepthSweepOptions(scale_candidates=9, scale_height=32),
     "scale 5": DepthSweepOptions(scale_candidates=5),
     "scale 5 at 32 px": DepthSweepOptions(scale_candidates=5, scale_height=32),
 }
