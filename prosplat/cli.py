@@ -649,6 +649,16 @@ def build_parser() -> argparse.ArgumentParser:
         "so training starts from the init's exact outputs (default 0: off)",
     )
     tg.add_argument(
+        "--grow-image-matching",
+        type=int,
+        default=defaults.grow_image_matching,
+        metavar="PX",
+        help="with --init prosplat weights: add a plane sweep of the input images themselves "
+        "(ZNCC over PX x PX windows, PX odd) to the depth head, which ranks depths a few planes "
+        "apart where the learned features cannot; it enters through zero weights so training "
+        "starts from the init's exact outputs (default 0: off)",
+    )
+    tg.add_argument(
         "--grow-alexnet",
         type=int,
         default=defaults.grow_alexnet,

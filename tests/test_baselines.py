@@ -173,17 +173,23 @@ def test_optimize_rejects_bad_input():
 
 
 def test_box_mean_is_the_pooling_it_replaces():
-    """plane_sweep._box (running sums) against avg_pool2d with shrinking border windows, on
+    """plane_sweep.box_mean (running sums) against avg_pool2d with shrinking border windows, on
     odd sizes, batches and a non-contiguous view (how the sweep calls it)."""
     import torch.nn.functional as F
 
-    from prosplat.baselines.plane_sweep import WINDOW, _box
+    from prosplat.baselines.plane_sweep import WINDOW, box_mean
 
     g = torch.Generator().manual_seed(0)
     for shape in ((1, 3, 7, 5), (4, 1, 33, 64), (2, 3, 3, 3)):
         x = torch.rand(shape, generator=g)
         ref = F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
-        assert torch.allclose(_box(x), ref, atol=2e-6), shape
+        assert torch.allclose(box_mean(x), ref, atol=2e-6), shape
+    for window in (1, 3, 7):  # the generator's image cost volume picks its own window
+        x = torch.rand(2, 3, 9, 11, generator=g)
+        ref = F.avg_pool2d(x, window, stride=1, padding=window // 2, count_include_pad=False)
+        assert torch.allclose(box_mean(x, window), ref, atol=2e-6), window
+    with pytest.raises(ValueError, match="odd"):
+        box_mean(x, 4)
     x = torch.rand(3, 5, 16, 16, generator=g).transpose(0, 1)
     ref = F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
-    assert torch.allclose(_box(x), ref, atol=2e-6)
+    assert torch.allclose(box_mean(x), ref, atol=2e-6)

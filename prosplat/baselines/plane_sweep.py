@@ -94,11 +94,14 @@ def _box_sum_last(x: Tensor, r: int) -> Tensor:
     return c[..., 2 * r + 1 :] - c[..., : -2 * r - 1]
 
 
-def _box(x: Tensor) -> Tensor:
-    """Mean over the WINDOW x WINDOW neighbourhood (border windows shrink, not zero-pad):
-    ``avg_pool2d(x, WINDOW, 1, WINDOW // 2, count_include_pad=False)`` to float rounding
-    (tests/test_baselines.py), at a third of its time (it was half of a sweep's)."""
-    r = WINDOW // 2
+def box_mean(x: Tensor, window: int = WINDOW) -> Tensor:
+    """Mean over the ``window`` x ``window`` neighbourhood (odd; border windows shrink, not
+    zero-pad) of the last two dimensions: ``avg_pool2d(x, window, 1, window // 2,
+    count_include_pad=False)`` to float rounding (tests/test_baselines.py), at a third of its
+    time (it was half of a sweep's)."""
+    if window < 1 or window % 2 == 0:
+        raise ValueError(f"box_mean: window must be odd and >= 1, got {window}")
+    r = window // 2
     h, w = x.shape[-2:]
     y = _box_sum_last(x, r)
     y = _box_sum_last(y.transpose(-1, -2), r).transpose(-1, -2)
@@ -127,9 +130,9 @@ def zncc_cost(
     dtype, device = images.dtype, images.device
     cam = cameras[ref]
     img = images[ref : ref + 1]  # [1,3,H,W]
-    mu_r = _box(img)
+    mu_r = box_mean(img)
     # pooling is linear, so the channel sums are taken before it: 1 channel pooled, not 3
-    var_r = _box((img * img).sum(1, keepdim=True))[:, 0] - (mu_r * mu_r).sum(1)  # [1,H,W]
+    var_r = box_mean((img * img).sum(1, keepdim=True))[:, 0] - (mu_r * mu_r).sum(1)  # [1,H,W]
     uv = cam.pixel_centers(torch.float64).to(device)  # [H,W,2]
     sources = [s for s in range(v) if s != ref]
     select = best_views is not None and len(sources) > best_views
@@ -174,9 +177,9 @@ def zncc_cost(
                 align_corners=False,
             )  # [1,3,C*H,W]
             warped = warped.reshape(3, -1, h, w).transpose(0, 1)  # [C,3,H,W]
-            mu_s = _box(warped)
-            var_s = _box((warped * warped).sum(1, keepdim=True))[:, 0] - (mu_s * mu_s).sum(1)
-            cov = _box((warped * img).sum(1, keepdim=True))[:, 0] - (mu_s * mu_r).sum(1)
+            mu_s = box_mean(warped)
+            var_s = box_mean((warped * warped).sum(1, keepdim=True))[:, 0] - (mu_s * mu_s).sum(1)
+            cov = box_mean((warped * img).sum(1, keepdim=True))[:, 0] - (mu_s * mu_r).sum(1)
             zncc = cov / torch.sqrt(var_r.clamp_min(0) * var_s.clamp_min(0) + ZNCC_EPS)
             c = 1 - zncc.clamp(-1, 1) + COLOR_WEIGHT * (mu_s - mu_r).abs().mean(1)
             if select:

@@ -39,6 +39,12 @@ class GeneratorConfig:
             second plane-sweep cost volume at 1/2 resolution (over the same candidates) to the
             depth head, so that a wide baseline, whose disparities span many 1/4-resolution
             cells, still finds a sharp peak. 0 (v1 weights) leaves it out.
+        image_matching_window: > 0 adds a plane sweep of the input images themselves to the
+            depth head: the ZNCC of this many pixels square (odd, at half the matching size)
+            against the neighbours at every candidate, averaged to 1/4 resolution
+            (:mod:`prosplat.generator.image_cost`),
+            because the learned features cannot rank depths a few planes apart and the pixels
+            can. 0 (v1-v12 weights) leaves it out.
         mono_channels: channels of the monocular branch (stands in for DepthSplat's ViT).
         mono_blocks: residual blocks in the monocular branch (dilations cycle 1, 2, 4).
         alexnet_layers: 1-3 adds AlexNet's relu1..relu<n> maps (the LPIPS backbone, frozen,
@@ -65,6 +71,7 @@ class GeneratorConfig:
     attention_mlp_ratio: int = 2
     cost_volume_views: int = 3
     fine_matching_channels: int = 0
+    image_matching_window: int = 0
     mono_channels: int = 32
     mono_blocks: int = 3
     alexnet_layers: int = 0
@@ -97,6 +104,13 @@ class GeneratorConfig:
         if self.attention_layers < 0 or self.mono_blocks < 0 or self.fine_matching_channels < 0:
             raise ValueError(
                 "GeneratorConfig.attention_layers, mono_blocks and fine_matching_channels must be >= 0"
+            )
+        if self.image_matching_window < 0 or (
+            self.image_matching_window and self.image_matching_window % 2 == 0
+        ):
+            raise ValueError(
+                "GeneratorConfig.image_matching_window must be 0 (off) or odd, got "
+                f"{self.image_matching_window}"
             )
         if not 0 <= self.alexnet_layers <= MAX_ALEXNET_LAYERS:
             raise ValueError(

@@ -55,7 +55,9 @@ class DepthHead(nn.Module):
 
     With ``fine_cost`` a second, 1/2-resolution cost volume over the same candidates comes in
     through a stride-2 conv (learned pooling that keeps the peak's position along D) and, average
-    pooled, as a second matching prior on the logits.
+    pooled, as a second matching prior on the logits. With ``image_cost`` the images' own ZNCC
+    plane sweep (1/4 resolution, the same candidates) comes in as D more U-Net channels and a
+    third prior.
     """
 
     def __init__(
@@ -65,33 +67,47 @@ class DepthHead(nn.Module):
         feature_channels: int,
         unet,
         fine_cost: bool = False,
+        image_cost: bool = False,
     ):
         super().__init__()
         d = depth_candidates
         self.fine_pool = (
             nn.Sequential(nn.Conv2d(d, d, 3, stride=2, padding=1), nn.GELU()) if fine_cost else None
         )
-        c_in = d * (2 if fine_cost else 1) + mono_channels + feature_channels
+        c_in = d * (1 + int(fine_cost) + int(image_cost)) + mono_channels + feature_channels
         self.unet = UNet(c_in, unet)
         self.logits = nn.Conv2d(unet[0], d, 3, padding=1)
         # The raw correlation is also added to the logits: a matching prior from step one. A flat
         # (zero-baseline) volume shifts all logits equally, so softmax ignores it.
         self.cost_gain = nn.Parameter(torch.ones(()))
         self.fine_gain = nn.Parameter(torch.ones(())) if fine_cost else None
+        self.image_gain = nn.Parameter(torch.ones(())) if image_cost else None
 
     def forward(
-        self, cost: Tensor, mono: Tensor, feats: Tensor, fine: Tensor | None = None
+        self,
+        cost: Tensor,
+        mono: Tensor,
+        feats: Tensor,
+        fine: Tensor | None = None,
+        image: Tensor | None = None,
     ) -> tuple[Tensor, Tensor, Tensor]:
-        """cost [N,D,h,w], mono [N,Cm,h,w], feats [N,C,h,w], fine [N,D,2h,2w] or None ->
-        t [N,1,h,w] normalised inverse depth, confidence [N,1,h,w], hidden [N,U0,h,w]."""
+        """cost [N,D,h,w], mono [N,Cm,h,w], feats [N,C,h,w], fine [N,D,2h,2w] or None, image
+        [N,D,h,w] or None -> t [N,1,h,w] normalised inverse depth, confidence [N,1,h,w],
+        hidden [N,U0,h,w]."""
         d = cost.shape[1]
         if (fine is None) != (self.fine_pool is None):
             raise ValueError("DepthHead: pass the fine cost volume exactly when built with it")
-        parts = [cost, mono, feats]
+        if (image is None) != (self.image_gain is None):
+            raise ValueError("DepthHead: pass the image cost volume exactly when built with it")
+        parts = [cost]  # the order the U-Net's first conv (and grow.py) expects
         prior = self.cost_gain * cost  # [N,D,h,w]
         if fine is not None:
-            parts.insert(1, self.fine_pool(fine))  # [N,D,h,w]
+            parts.append(self.fine_pool(fine))  # [N,D,h,w]
             prior = prior + self.fine_gain * F.avg_pool2d(fine, 2)
+        if image is not None:
+            parts.append(image)  # [N,D,h,w]
+            prior = prior + self.image_gain * image
+        parts += [mono, feats]
         hidden = self.unet(torch.cat(parts, dim=1))  # [N,U0,h,w]
         logits = self.logits(hidden) + prior  # [N,D,h,w]
         prob = torch.softmax(logits, dim=1)  # [N,D,h,w]

@@ -2,7 +2,8 @@
 
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
 does not. When a change adds a module (the 1/2-resolution cost volume of
-``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``), the trained
+``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``; the images' own
+plane sweep of ``image_matching_window``), the trained
 weights are copied into the larger network and the new module enters through weights that
 start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
 only has to learn what the new input adds.
@@ -19,7 +20,8 @@ from torch import Tensor
 from prosplat.generator.config import GeneratorConfig
 from prosplat.generator.model import Generator
 
-#: The first conv of the depth head's U-Net: its input is concat(cost, [fine cost], mono, feats).
+#: The first conv of the depth head's U-Net: its input is
+#: concat(cost, [fine cost], [image cost], mono, feats).
 _UNET_IN = "depth_head.unet.inc.0.0.weight"
 
 
@@ -103,4 +105,38 @@ def grow_alexnet(
             out[key] = state[key].clone()
         else:
             out[key] = fresh  # the projection's own init (last layer zero)
+    return grown_config, out
+
+
+def grow_image_matching(
+    config: GeneratorConfig, state: dict[str, Tensor], window: int
+) -> tuple[GeneratorConfig, dict[str, Tensor]]:
+    """Weights of ``config`` (without the image cost volume) -> the same network with the
+    images' ZNCC plane sweep of ``window`` pixels (:mod:`prosplat.generator.image_cost`), and
+    a state dict that gives identical outputs: the D U-Net input channels it occupies get
+    zero weights and its gain on the logit prior is 0. The volume itself has no weights, so
+    gradients reach both closed paths from the first step."""
+    if config.image_matching_window:
+        raise ValueError(
+            "grow_image_matching: the weights already have an image cost volume "
+            f"(image_matching_window={config.image_matching_window})"
+        )
+    if window < 1:
+        raise ValueError(f"grow_image_matching: window must be >= 1, got {window}")
+    grown_config = replace(config, image_matching_window=window)  # validates: odd
+    grown = Generator(grown_config).state_dict()
+    if set(state) != set(grown) - {"depth_head.image_gain"}:
+        raise ValueError(
+            "grow_image_matching: the weights do not match the network of their config "
+            f"({sorted(set(state) ^ (set(grown) - {'depth_head.image_gain'}))[:3]})"
+        )
+    d = config.num_depth_candidates
+    at = d * (2 if config.fine_matching_channels else 1)  # after cost and fine cost
+    out = {key: value.clone() for key, value in state.items()}
+    old = state[_UNET_IN]  # [U0, at + Cm + C, 3, 3]
+    w = torch.zeros_like(grown[_UNET_IN])  # [U0, at + D + Cm + C, 3, 3]
+    w[:, :at] = old[:, :at]
+    w[:, at + d :] = old[:, at:]
+    out[_UNET_IN] = w
+    out["depth_head.image_gain"] = torch.zeros_like(grown["depth_head.image_gain"])
     return grown_config, out

@@ -22,6 +22,7 @@ from prosplat.generator.cost_volume import (
 )
 from prosplat.generator.depth_head import DepthHead, DepthRefiner
 from prosplat.generator.encoder import FeatureEncoder
+from prosplat.generator.image_cost import image_cost_volume
 from prosplat.generator.monocular import MonocularBranch
 from prosplat.generator.output import GeneratorOutput
 
@@ -67,6 +68,7 @@ class Generator(nn.Module):
             c.feature_channels,
             c.unet_channels,
             fine_cost=c.fine_matching_channels > 0,
+            image_cost=c.image_matching_window > 0,
         )
         self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels)
         self.adapter = GaussianAdapter(
@@ -175,6 +177,28 @@ class Generator(nn.Module):
         candidates = inverse_depth_candidates(near, far, self.config.num_depth_candidates)  # [B,D]
         return plane_sweep_cost_volume(feats, K_feat, w2c, candidates, neighbours)
 
+    def image_cost(
+        self, x: Tensor, K: Tensor, w2c: Tensor, near: Tensor, far: Tensor, image_size
+    ) -> Tensor:
+        """The images' own ZNCC plane sweep (:mod:`prosplat.generator.image_cost`) over the
+        cost volume's candidates and neighbours, at half the matching size: ``x
+        [B,V,3,Hm,Wm]`` in [-1, 1] (the matching size), ``K`` for the full ``image_size (H,
+        W)`` -> [B,V,D,Hm/4,Wm/4]. Half size: on the validation scenes its peaks are nearly
+        as often right as at the full size (within 1.5 planes of the truth for 26-29 % of
+        pixels, against 31 %) at a fifth of the time."""
+        h, w = image_size
+        b, v = x.shape[:2]
+        hh, wh = x.shape[-2] // 2, x.shape[-1] // 2
+        half = F.interpolate(
+            x.flatten(0, 1), size=(hh, wh), mode="bilinear", antialias=True, align_corners=False
+        )  # [BV,3,Hm/2,Wm/2]
+        half = ((half + 1) / 2).clamp(0, 1).view(b, v, 3, hh, wh)
+        K_half = scale_intrinsics(K, wh / w, hh / h)  # [B,V,3,3] at half the matching size
+        neighbours = nearest_views(w2c, self.config.cost_volume_views)  # [B,V,k]
+        candidates = inverse_depth_candidates(near, far, self.config.num_depth_candidates)
+        window = self.config.image_matching_window
+        return image_cost_volume(half, K_half, w2c, candidates, neighbours, window, pool=2)
+
     def _match_images(self, x: Tensor, match_size: tuple[int, int]) -> Tensor:
         """x [B,V,3,H,W] -> [B,V,3,Hm,Wm], antialiased bilinear (as :func:`resize_views`)."""
         hm, wm = (int(s) for s in match_size)
@@ -224,9 +248,12 @@ class Generator(nn.Module):
         fine_cost = None
         if fine is not None:
             fine_cost = self.cost_volume(fine, K, w2c, near, far, (h, w)).flatten(0, 1)
+        image_cost = None
+        if cfg.image_matching_window:
+            image_cost = self.image_cost(xm, K, w2c, near, far, (h, w)).flatten(0, 1)
 
         t, conf, hidden = self.depth_head(
-            cost.flatten(0, 1), mono, feats.flatten(0, 1), fine_cost
+            cost.flatten(0, 1), mono, feats.flatten(0, 1), fine_cost, image_cost
         )  # [BV,1,Hm/4,Wm/4] x2, [BV,U0,Hm/4,Wm/4]
         t, conf, rfeat = self.refiner(
             xm.flatten(0, 1), t, conf, hidden

@@ -266,6 +266,9 @@ class TrainConfig:
     # with a prosplat ``init`` without them: add frozen AlexNet relu1..relu<n> features to the
     # monocular branch through zero weights (prosplat.generator.grow.grow_alexnet); 0 = off
     grow_alexnet: int = 0
+    # with a prosplat ``init`` without it: add the images' own ZNCC plane sweep with this odd
+    # window to the depth head through zero weights (grow.grow_image_matching); 0 = off
+    grow_image_matching: int = 0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -305,7 +308,13 @@ class TrainConfig:
             raise ValueError(
                 f"grow_alexnet must be 0-{MAX_ALEXNET_LAYERS}, got {self.grow_alexnet}"
             )
-        for name in ("grow_fine_matching", "grow_alexnet"):
+        if self.grow_image_matching < 0 or (
+            self.grow_image_matching and self.grow_image_matching % 2 == 0
+        ):
+            raise ValueError(
+                f"grow_image_matching is an odd window (0: off), got {self.grow_image_matching}"
+            )
+        for name in ("grow_fine_matching", "grow_alexnet", "grow_image_matching"):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
 
@@ -653,7 +662,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         pipe = None
     else:
         init_state = None
-        if cfg.grow_fine_matching or cfg.grow_alexnet:
+        if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_image_matching:
             model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
@@ -858,11 +867,12 @@ def _init_weights(cfg: TrainConfig):
 
 def _grown_init(cfg: TrainConfig):
     """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
-    channels and then by ``cfg.grow_alexnet`` AlexNet layers; on a resume only the config is
-    used (the checkpoint holds the weights)."""
+    channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by the image cost volume of
+    ``cfg.grow_image_matching``; on a resume only the config is used (the checkpoint holds
+    the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
-    from prosplat.generator.grow import grow_alexnet, grow_fine_matching
+    from prosplat.generator.grow import grow_alexnet, grow_fine_matching, grow_image_matching
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
     if "config" not in meta:
@@ -872,6 +882,8 @@ def _grown_init(cfg: TrainConfig):
         config, state = grow_fine_matching(config, state, cfg.grow_fine_matching)
     if cfg.grow_alexnet:
         config, state = grow_alexnet(config, state, cfg.grow_alexnet)
+    if cfg.grow_image_matching:
+        config, state = grow_image_matching(config, state, cfg.grow_image_matching)
     return config, state
 
 

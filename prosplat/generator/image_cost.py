@@ -1,0 +1,90 @@
+"""A plane sweep of the input images themselves: windowed ZNCC against the neighbour views.
+
+Why the generator needs it beside its learned cost volume: the learned matching features
+pick the right region among the 32 planes over near-far, but they cannot rank depths a few
+planes apart. Where the truth lies within two planes of the depth head's estimate, the
+features' correlation peaks farther from it than a random candidate does (BENCHMARKS "A
+learned band search"), and a learned second search on them did not train. The test-time
+depth sweep (:mod:`prosplat.depth_sweep`) gains because it correlates the images: the pixels
+themselves rank nearby depths wherever there is texture, and that carries over to real
+photos. This volume gives the depth head that signal at every plane, from the first step.
+
+Per reference pixel and candidate plane, the ZNCC of the ``window`` x ``window`` patch (the
+three channels as one vector) against each neighbour's image warped to that plane, averaged
+over the neighbours in whose image the point lands, then averaged down to the depth head's
+1/4 resolution. Flat patches correlate to about 0 (``ZNCC_EPS``), not to their noise.
+Nothing here is learned, and nothing needs gradients (the inputs are images and cameras).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from prosplat.baselines.plane_sweep import box_mean
+from prosplat.generator.cost_volume import warp_grid
+
+#: Added to var_ref · var_src (images in [0, 1], channels summed): a patch whose standard
+#: deviation is below ~0.01 (a render's noise on a flat wall) correlates to about 0.
+ZNCC_EPS = 1e-4
+
+
+@torch.no_grad()
+def image_cost_volume(
+    images: Tensor,
+    K: Tensor,
+    w2c: Tensor,
+    depths: Tensor,
+    neighbours: Tensor,
+    window: int,
+    pool: int,
+) -> Tensor:
+    """ZNCC plane sweep of the images.
+
+    Args:
+        images: [B,V,3,H,W] in [0, 1].
+        K: [B,V,3,3] intrinsics at H x W.
+        w2c: [B,V,4,4] world-to-camera.
+        depths: [B,D] candidate depths (the learned cost volume's planes).
+        neighbours: [B,V,k] the views each view is matched against.
+        window: the ZNCC window in pixels (odd).
+        pool: the result is averaged over ``pool`` x ``pool`` cells (H and W divisible by it).
+    Returns:
+        [B,V,D,H/pool,W/pool] mean ZNCC in [-1, 1]; 0 where no neighbour sees the point.
+    """
+    b, v, c, h, w = images.shape
+    d = depths.shape[1]
+    if h % pool or w % pool:
+        raise ValueError(f"image_cost_volume: {w}x{h} is not divisible by pool={pool}")
+    ref = images.flatten(0, 1)  # [BV,C,H,W]
+    mu_r = box_mean(ref, window)  # [BV,C,H,W]
+    var_r = box_mean((ref * ref).sum(1, keepdim=True), window) - (mu_r * mu_r).sum(
+        1, keepdim=True
+    )  # [BV,1,H,W]
+    var_r = var_r.clamp(min=0)
+    ref_d, mu_r_d = ref[:, :, None], mu_r[:, :, None]  # [BV,C,1,H,W]: against every plane
+    bidx = torch.arange(b, device=images.device)[:, None]  # [B,1]
+    total = images.new_zeros(b * v, d, h, w)
+    seen = images.new_zeros(b * v, d, h, w)
+    for n in range(neighbours.shape[-1]):
+        nbr = neighbours[..., n]  # [B,V]
+        grid = warp_grid(K, w2c, nbr, depths, h, w).to(images.dtype)  # [B,V,D,H,W,2]
+        inside = (grid.abs().amax(-1) <= 1).reshape(b * v, d, h, w).to(images.dtype)
+        src = images[bidx, nbr].reshape(b * v, c, h, w)  # [BV,C,H,W]
+        warped = F.grid_sample(src, grid.reshape(b * v, d * h, w, 2), align_corners=False)
+        warped = warped.view(b * v, c, d, h, w)  # [BV,C,D,H,W]
+        # one box filter for every statistic: the warped channels, sum s², sum s·r
+        stats = torch.cat(
+            [warped, (warped * warped).sum(1, keepdim=True), (warped * ref_d).sum(1, keepdim=True)],
+            1,
+        )  # [BV,C+2,D,H,W]
+        stats = box_mean(stats, window)
+        mu_s = stats[:, :c]  # [BV,C,D,H,W]
+        var_s = (stats[:, c] - (mu_s * mu_s).sum(1)).clamp(min=0)  # [BV,D,H,W]
+        cov = stats[:, c + 1] - (mu_s * mu_r_d).sum(1)  # [BV,D,H,W]
+        zncc = (cov / (var_r * var_s + ZNCC_EPS).sqrt()).clamp(-1, 1)
+        total = total + zncc * inside
+        seen = seen + inside
+    mean = total / seen.clamp(min=1)  # [BV,D,H,W]
+    return F.avg_pool2d(mean, pool).view(b, v, d, h // pool, w // pool)

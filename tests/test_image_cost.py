@@ -1,0 +1,132 @@
+"""The images' own ZNCC plane sweep in the generator (prosplat.generator.image_cost): it peaks
+at the true plane, says nothing where it knows nothing, and grows into trained weights without
+changing them."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+from test_generator import FAR, NEAR, SMALL, batch, plane_features, render_loss, rig
+
+from prosplat import Camera
+from prosplat.generator import Generator, GeneratorConfig
+from prosplat.generator.cost_volume import inverse_depth_candidates, nearest_views
+from prosplat.generator.image_cost import image_cost_volume
+from prosplat.train.generator import TrainConfig
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _two_views(w: int, h: int, true_z: float):
+    """A reference camera at the origin looking +z and a neighbour 0.6 to its side, both
+    seeing a textured plane at z = ``true_z``: [1,2,3,H,W] images in [0,1], K, w2c."""
+    ref = Camera.from_intrinsics(0.9 * w, 0.9 * w, w / 2, h / 2, w, h)
+    nb = Camera.look_at((0.6, 0.1, 0.0), (0.0, 0.0, true_z), (0, -1, 0), 0.9 * w, w, h)
+    images = torch.stack([(plane_features(c, true_z, 6)[:3] + 1) / 2 for c in (ref, nb)])[None]
+    K = torch.stack([ref.K, nb.K]).float()[None]
+    w2c = torch.stack([ref.world_to_cam, nb.world_to_cam]).float()[None]
+    return images, K, w2c
+
+
+def test_the_image_sweep_peaks_at_the_candidate_nearest_the_plane():
+    """Per pixel, the ZNCC is ~1 at the candidate nearest the plane's depth in disparity and
+    lower elsewhere; pooling averages 2x2 cells."""
+    w, h, d = 48, 40, 16
+    cands = inverse_depth_candidates(torch.tensor([NEAR]), torch.tensor([FAR]), d)  # [1,D]
+    true_z = float(cands[0, 6])
+    images, K, w2c = _two_views(w, h, true_z)
+    vol = image_cost_volume(images, K, w2c, cands, nearest_views(w2c, 3), 5, pool=1)
+    assert vol.shape == (1, 2, d, h, w)
+    centre = vol[0, 0, :, h // 4 : 3 * h // 4, w // 4 : 3 * w // 4]  # seen by the neighbour
+    assert (centre.argmax(0) == 6).float().mean() > 0.95
+    assert centre[6].median() > 0.95
+    assert centre[2].median() < 0.5 and centre[12].median() < 0.5
+    pooled = image_cost_volume(images, K, w2c, cands, nearest_views(w2c, 3), 5, pool=2)
+    assert pooled.shape == (1, 2, d, h // 2, w // 2)
+    torch.testing.assert_close(pooled, torch.nn.functional.avg_pool3d(vol, (1, 2, 2)))
+
+
+def test_flat_images_and_unseen_points_give_zero():
+    """A flat image has no texture to match (0, not its noise), and a candidate that lands
+    outside every neighbour's image gives 0 (no vote), not the correlation of padding."""
+    w, h, d = 32, 32, 8
+    cands = inverse_depth_candidates(torch.tensor([NEAR]), torch.tensor([FAR]), d)
+    images, K, w2c = _two_views(w, h, 3.0)
+    flat = torch.full_like(images, 0.5)
+    vol = image_cost_volume(flat, K, w2c, cands, nearest_views(w2c, 3), 5, pool=1)
+    assert vol.abs().max() < 1e-3
+    far_away = w2c.clone()
+    far_away[0, 1, 0, 3] += 1e3  # the neighbour moved far to the side: it sees none of it
+    vol = image_cost_volume(images, K, far_away, cands, nearest_views(far_away, 3), 5, pool=1)
+    assert torch.isfinite(vol).all() and vol.abs().max() == 0
+
+
+def test_image_matching_feeds_the_depth_head_and_gets_gradients():
+    """image_matching_window > 0: the depth head gets D more channels and a gain that learn;
+    0 (every shipped generator) keeps the parameter layout, and the window must be odd."""
+    torch.manual_seed(2)
+    model = Generator(replace(SMALL, image_matching_window=3)).train()
+    cams = rig(3, 32, 32)
+    images, K, w2c = batch(cams[::2])
+    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
+    render_loss(model, images, K, w2c, cams[1], target).backward()
+    assert model.depth_head.image_gain.grad.abs() > 0
+    plain = Generator(SMALL).state_dict()
+    assert set(model.state_dict()) - set(plain) == {"depth_head.image_gain"}
+    d = SMALL.num_depth_candidates
+    assert model.state_dict()["depth_head.unet.inc.0.0.weight"].shape[1] == (
+        plain["depth_head.unet.inc.0.0.weight"].shape[1] + d
+    )
+    for bad in (-1, 4):
+        with pytest.raises(ValueError, match="image_matching_window"):
+            GeneratorConfig(image_matching_window=bad)
+    with pytest.raises(ValueError, match="odd"):
+        TrainConfig(data="x", out="y", init="w.safetensors", grow_image_matching=4)
+    with pytest.raises(ValueError, match="needs --init"):
+        TrainConfig(data="x", out="y", grow_image_matching=5)
+
+
+@pytest.mark.parametrize("fine", [0, 4])
+def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
+    """Growing weights by the image sweep gives the same Gaussians as the original network
+    (its U-Net channels and its prior gain start at zero), with or without a fine cost volume
+    before it in the U-Net's input, and a gradient step opens both paths."""
+    from prosplat.generator.grow import grow_image_matching
+
+    torch.manual_seed(3)
+    base = replace(SMALL, fine_matching_channels=fine)
+    old = Generator(base).eval()
+    with torch.no_grad():  # trained weights are not at their init: perturb every tensor
+        for p in old.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    cfg, state = grow_image_matching(base, old.state_dict(), 5)
+    assert cfg == replace(base, image_matching_window=5)
+    new = Generator(cfg).eval()
+    new.load_state_dict(state)
+    cams = rig(3, 32, 32)
+    images, K, w2c = batch(cams)
+    near, far = torch.tensor([NEAR]), torch.tensor([FAR])
+    with torch.no_grad():
+        a, b = old(images, K, w2c, near, far), new(images, K, w2c, near, far)
+    torch.testing.assert_close(b.depths, a.depths, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(b.means, a.means, atol=1e-5, rtol=1e-5)
+    new.train()
+    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
+    render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
+    grads = {n: p.grad for n, p in new.named_parameters()}
+    assert grads["depth_head.image_gain"].abs() > 0
+    d = base.num_depth_candidates
+    at = d * (2 if fine else 1)
+    assert grads["depth_head.unet.inc.0.0.weight"][:, at : at + d].abs().max() > 0
+    with pytest.raises(ValueError, match="already"):
+        grow_image_matching(cfg, state, 5)
+    with pytest.raises(ValueError, match="window"):
+        grow_image_matching(base, old.state_dict(), 0)
