@@ -6,7 +6,10 @@ per 1/4-resolution pixel fully covered by the truth, in normalised inverse depth
 planes are uniform, one plane step = 1/(D-1)):
 
 - ``learned``: the generator's correlation of its matching features (what its depth head gets);
-- ``estimate``: the depth head's own t (the network's answer, for scale);
+- ``depth head t``: the depth head's own expectation at 1/4 resolution (what the full-size
+  refiner then corrects, often by much);
+- ``generator depth``: the generator's output depth, averaged to 1/4 resolution in inverse
+  depth (the network's answer, for scale);
 - ``image <res> w<N>``: the ZNCC plane sweep of the input images
   (:func:`prosplat.generator.image_cost.image_cost_volume`) at the matching size (``full``)
   or half of it (``half``), with an N-pixel window, averaged to 1/4 resolution.
@@ -69,7 +72,7 @@ def main() -> None:
     caught: dict[str, torch.Tensor] = {}
 
     def head_hook(module, inputs, out) -> None:
-        caught["learned"], caught["estimate"] = inputs[0], out[0]  # [V,D,h,w], [V,1,h,w]
+        caught["learned"], caught["head"] = inputs[0], out[0]  # [V,D,h,w], [V,1,h,w]
 
     handle = generator.depth_head.register_forward_hook(head_hook)
     d = generator.config.num_depth_candidates
@@ -96,11 +99,14 @@ def main() -> None:
             )  # [V,3,size,size]
             K = scale_intrinsics(s["input_K"], size / native, size / native)[None]
             with torch.no_grad():
-                generator(images[None], K, w2c, near, far)
+                depth = generator(images[None], K, w2c, near, far).depths[0]  # [V,size,size]
+            inv_pred = F.interpolate(1 / depth[:, None], size=(q, q), mode="area")[:, 0]
+            t_pred = (inv_pred - 1 / far) / (1 / near - 1 / far)  # [V,h,w]
             errors.setdefault("learned", []).append(peak_errors(caught["learned"], t_true, covered))
-            errors.setdefault("estimate", []).append(
-                (caught["estimate"][:, 0] - t_true).abs()[covered]
+            errors.setdefault("depth head t", []).append(
+                (caught["head"][:, 0] - t_true).abs()[covered]
             )
+            errors.setdefault("generator depth", []).append((t_pred - t_true).abs()[covered])
             planes = inverse_depth_candidates(torch.tensor([near]), torch.tensor([far]), d)
             neighbours = nearest_views(w2c, generator.config.cost_volume_views)
             for name, (div, window) in variants.items():

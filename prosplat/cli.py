@@ -659,6 +659,16 @@ def build_parser() -> argparse.ArgumentParser:
         "starts from the init's exact outputs (default 0: off)",
     )
     tg.add_argument(
+        "--grow-band",
+        type=int,
+        default=defaults.grow_band,
+        metavar="N",
+        help="with --init prosplat weights: add a learned depth sweep after the depth refiner "
+        "(N depths in a ±30%% band around each pixel's depth, scored by the images' ZNCC; "
+        "prosplat/generator/band.py), entering through a zero convolution so training starts "
+        "from the init's exact outputs (default 0: off)",
+    )
+    tg.add_argument(
         "--grow-alexnet",
         type=int,
         default=defaults.grow_alexnet,

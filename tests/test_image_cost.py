@@ -4,6 +4,7 @@ changing them."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import pytest
@@ -25,12 +26,26 @@ def one_thread():
     torch.set_num_threads(before)
 
 
-def _two_views(w: int, h: int, true_z: float):
+def _plane_image(cam: Camera, z0: float) -> torch.Tensor:
+    """[3,H,W] in [0,1]: the world plane z = z0 painted with three plane waves of 0.7-2
+    cycles per unit (periods of 4-14 px at half the test size: texture that survives the
+    band's downsampling, where ``plane_features``' finer waves blur away)."""
+    o = cam.center.double()
+    d = cam.ray_directions(torch.float64)  # [H,W,3]
+    xy = (o + ((z0 - o[2]) / d[..., 2])[..., None] * d)[..., :2]  # [H,W,2] on the plane
+    freq = torch.tensor([0.7, 1.3, 2.0], dtype=torch.float64)
+    ang = torch.tensor([0.3, 1.4, 2.5], dtype=torch.float64)
+    dirs = torch.stack([ang.cos(), ang.sin()], -1)  # [3,2]
+    return (0.5 + 0.5 * torch.sin(2 * torch.pi * freq * (xy @ dirs.T))).permute(2, 0, 1).float()
+
+
+def _two_views(w: int, h: int, true_z: float, texture=None):
     """A reference camera at the origin looking +z and a neighbour 0.6 to its side, both
     seeing a textured plane at z = ``true_z``: [1,2,3,H,W] images in [0,1], K, w2c."""
     ref = Camera.from_intrinsics(0.9 * w, 0.9 * w, w / 2, h / 2, w, h)
     nb = Camera.look_at((0.6, 0.1, 0.0), (0.0, 0.0, true_z), (0, -1, 0), 0.9 * w, w, h)
-    images = torch.stack([(plane_features(c, true_z, 6)[:3] + 1) / 2 for c in (ref, nb)])[None]
+    paint = texture or (lambda c, z: (plane_features(c, z, 6)[:3] + 1) / 2)
+    images = torch.stack([paint(c, true_z) for c in (ref, nb)])[None]
     K = torch.stack([ref.K, nb.K]).float()[None]
     w2c = torch.stack([ref.world_to_cam, nb.world_to_cam]).float()[None]
     return images, K, w2c
@@ -130,3 +145,77 @@ def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
         grow_image_matching(cfg, state, 5)
     with pytest.raises(ValueError, match="window"):
         grow_image_matching(base, old.state_dict(), 0)
+
+
+# ---- the learned depth sweep (prosplat.generator.band) --------------------------------------
+def test_the_band_peaks_at_the_true_depth_around_a_wrong_one():
+    """Around a depth 15 % too far, the band's ZNCC peaks at the candidate e^-0.15 nearer
+    (9 candidates over ±0.3 in log: index 2) wherever the neighbour sees the plane."""
+    from prosplat.generator.band import BandRefiner
+
+    w, h, true_z = 48, 40, 3.0
+    images, K, w2c = _two_views(w, h, true_z, _plane_image)
+    band = BandRefiner(9, 4)
+    depth = torch.full((1, 2, h, w), true_z * math.exp(0.15))
+    scores = band.scores(images, depth, K, w2c, nearest_views(w2c, 3))
+    assert scores.shape == (1, 2, 9, h // 2, w // 2)
+    ref = scores[0, 0, :, 3:-3, 3:-3]  # [9,..]: windows inside the image
+    # the neighbour sees the left part of the view at no depth, and some pixels only at some
+    # candidates (windows cut by its edge): scored where every candidate lands inside it
+    seen = ref.abs().amin(0) > 0.01
+    assert seen.float().mean() > 0.6
+    assert (ref.argmax(0)[seen] == 2).float().mean() > 0.95
+    assert ref[2][seen].median() > 0.9
+
+
+def test_the_band_starts_closed_and_moves_depth_within_its_span():
+    from prosplat.generator.band import BAND_SPAN, BandRefiner
+
+    torch.manual_seed(0)
+    w, h = 32, 32
+    images, K, w2c = _two_views(w, h, 3.0)
+    depth = torch.full((1, 2, h, w), 3.0)
+    feats = torch.randn(2, 4, h, w)
+    band = BandRefiner(5, 4)
+    out = band(images, depth, feats, K, w2c, nearest_views(w2c, 3))
+    torch.testing.assert_close(out, depth)  # closed: the depth passes through
+    with torch.no_grad():
+        band.delta.weight.normal_(0, 10.0)  # wide open, saturating the tanh
+    out = band(images, depth, feats, K, w2c, nearest_views(w2c, 3))
+    ratio = (out / depth).log()
+    assert ratio.abs().max() <= BAND_SPAN + 1e-5 and ratio.abs().max() > 0.5 * BAND_SPAN
+    with pytest.raises(ValueError, match="candidates"):
+        BandRefiner(1, 4)
+
+
+def test_grow_band_reproduces_the_trained_network_then_learns():
+    from prosplat.generator.grow import grow_band
+
+    torch.manual_seed(3)
+    old = Generator(SMALL).eval()
+    with torch.no_grad():
+        for p in old.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    cfg, state = grow_band(SMALL, old.state_dict(), 5)
+    assert cfg == replace(SMALL, band_candidates=5)
+    new = Generator(cfg).eval()
+    new.load_state_dict(state)
+    cams = rig(3, 32, 32)
+    images, K, w2c = batch(cams)
+    near, far = torch.tensor([NEAR]), torch.tensor([FAR])
+    with torch.no_grad():
+        a, b = old(images, K, w2c, near, far), new(images, K, w2c, near, far)
+    torch.testing.assert_close(b.depths, a.depths, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(b.means, a.means, atol=1e-5, rtol=1e-5)
+    new.train()
+    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
+    render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
+    assert new.band.delta.weight.grad.abs().max() > 0
+    with pytest.raises(ValueError, match="already"):
+        grow_band(cfg, state, 5)
+    with pytest.raises(ValueError, match="candidates"):
+        grow_band(SMALL, old.state_dict(), 1)
+    with pytest.raises(ValueError, match="band_candidates"):
+        GeneratorConfig(band_candidates=1)
+    with pytest.raises(ValueError, match="grow_band"):
+        TrainConfig(data="x", out="y", init="w.safetensors", grow_band=1)

@@ -45,6 +45,10 @@ class GeneratorConfig:
             (:mod:`prosplat.generator.image_cost`),
             because the learned features cannot rank depths a few planes apart and the pixels
             can. 0 (v1-v12 weights) leaves it out.
+        band_candidates: > 0 adds a learned depth sweep after the depth refiner: this many
+            depths in a ±30 % band around each pixel's depth, scored by the images' ZNCC
+            against the neighbours, read by a small conv net that moves the depth within the
+            band (:mod:`prosplat.generator.band`). 0 (v1-v12 weights) leaves it out.
         mono_channels: channels of the monocular branch (stands in for DepthSplat's ViT).
         mono_blocks: residual blocks in the monocular branch (dilations cycle 1, 2, 4).
         alexnet_layers: 1-3 adds AlexNet's relu1..relu<n> maps (the LPIPS backbone, frozen,
@@ -72,6 +76,7 @@ class GeneratorConfig:
     cost_volume_views: int = 3
     fine_matching_channels: int = 0
     image_matching_window: int = 0
+    band_candidates: int = 0
     mono_channels: int = 32
     mono_blocks: int = 3
     alexnet_layers: int = 0
@@ -111,6 +116,11 @@ class GeneratorConfig:
             raise ValueError(
                 "GeneratorConfig.image_matching_window must be 0 (off) or odd, got "
                 f"{self.image_matching_window}"
+            )
+        if self.band_candidates < 0 or self.band_candidates == 1:
+            raise ValueError(
+                "GeneratorConfig.band_candidates must be 0 (off) or >= 2, got "
+                f"{self.band_candidates}"
             )
         if not 0 <= self.alexnet_layers <= MAX_ALEXNET_LAYERS:
             raise ValueError(

@@ -3,7 +3,8 @@
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
 does not. When a change adds a module (the 1/2-resolution cost volume of
 ``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``; the images' own
-plane sweep of ``image_matching_window``), the trained
+plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``), the
+trained
 weights are copied into the larger network and the new module enters through weights that
 start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
 only has to learn what the new input adds.
@@ -139,4 +140,26 @@ def grow_image_matching(
     w[:, at + d :] = old[:, at:]
     out[_UNET_IN] = w
     out["depth_head.image_gain"] = torch.zeros_like(grown["depth_head.image_gain"])
+    return grown_config, out
+
+
+def grow_band(
+    config: GeneratorConfig, state: dict[str, Tensor], candidates: int
+) -> tuple[GeneratorConfig, dict[str, Tensor]]:
+    """Weights of ``config`` (without the learned depth sweep) -> the same network with
+    :class:`prosplat.generator.band.BandRefiner` over ``candidates`` depths, and a state dict
+    that gives the same outputs: the band's last convolution is zero (its init), the rest
+    keeps a fresh random init (seeded by the caller) so that gradients open it."""
+    if config.band_candidates:
+        raise ValueError(
+            f"grow_band: the weights already have a band (band_candidates={config.band_candidates})"
+        )
+    if candidates < 2:
+        raise ValueError(f"grow_band: candidates must be >= 2, got {candidates}")
+    grown_config = replace(config, band_candidates=candidates)
+    grown = Generator(grown_config).state_dict()
+    if set(state) != {k for k in grown if not k.startswith("band.")}:
+        raise ValueError("grow_band: the weights do not match the network of their config")
+    out = {key: value.clone() for key, value in state.items()}
+    out.update({key: value for key, value in grown.items() if key.startswith("band.")})
     return grown_config, out

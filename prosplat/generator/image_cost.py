@@ -46,7 +46,8 @@ def image_cost_volume(
         images: [B,V,3,H,W] in [0, 1].
         K: [B,V,3,3] intrinsics at H x W.
         w2c: [B,V,4,4] world-to-camera.
-        depths: [B,D] candidate depths (the learned cost volume's planes).
+        depths: [B,D] candidate depths (the learned cost volume's planes), or [B,V,D,H,W]
+            each pixel's own candidates (a band around a depth map).
         neighbours: [B,V,k] the views each view is matched against.
         window: the ZNCC window in pixels (odd).
         pool: the result is averaged over ``pool`` x ``pool`` cells (H and W divisible by it).
@@ -54,7 +55,7 @@ def image_cost_volume(
         [B,V,D,H/pool,W/pool] mean ZNCC in [-1, 1]; 0 where no neighbour sees the point.
     """
     b, v, c, h, w = images.shape
-    d = depths.shape[1]
+    d = depths.shape[-3] if depths.ndim == 5 else depths.shape[1]
     if h % pool or w % pool:
         raise ValueError(f"image_cost_volume: {w}x{h} is not divisible by pool={pool}")
     ref = images.flatten(0, 1)  # [BV,C,H,W]

@@ -13,6 +13,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from prosplat.generator.adapter import GaussianAdapter
+from prosplat.generator.band import BandRefiner
 from prosplat.generator.config import SIZE_MULTIPLE, TINY, GeneratorConfig
 from prosplat.generator.cost_volume import (
     inverse_depth_candidates,
@@ -71,6 +72,7 @@ class Generator(nn.Module):
             image_cost=c.image_matching_window > 0,
         )
         self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels)
+        self.band = BandRefiner(c.band_candidates, c.refine_channels) if c.band_candidates else None
         self.adapter = GaussianAdapter(
             c.refine_channels,
             c.sh_degree,
@@ -258,15 +260,27 @@ class Generator(nn.Module):
         t, conf, rfeat = self.refiner(
             xm.flatten(0, 1), t, conf, hidden
         )  # [BV,1,Hm,Wm] x2, [BV,R,Hm,Wm]
+        inv_near = (1.0 / near).repeat_interleave(v)[:, None, None, None]  # [BV,1,1,1]
+        inv_far = (1.0 / far).repeat_interleave(v)[:, None, None, None]
+        if self.band is not None:  # the learned depth sweep, at the matching size
+            hm, wm = xm.shape[-2:]
+            depth_m = 1.0 / (inv_far + t * (inv_near - inv_far))  # [BV,1,Hm,Wm]
+            depth_m = self.band(
+                (xm + 1) / 2,
+                depth_m.view(b, v, hm, wm),
+                rfeat,
+                scale_intrinsics(K, wm / w, hm / h),
+                w2c,
+                nearest_views(w2c, cfg.cost_volume_views),
+            ).view(b * v, 1, hm, wm)
+            t = ((1.0 / depth_m - inv_far) / (inv_near - inv_far)).clamp(0, 1)
         if tuple(t.shape[-2:]) != (h, w):  # matched smaller: to the inputs' size
             maps = F.interpolate(
                 torch.cat([t, conf, rfeat], 1), size=(h, w), mode="bilinear", align_corners=False
             )  # [BV,2+R,H,W]
             t, conf, rfeat = maps[:, :1], maps[:, 1:2], maps[:, 2:]
 
-        inv_near = (1.0 / near).repeat_interleave(v)[:, None, None]  # [BV,1,1]
-        inv_far = (1.0 / far).repeat_interleave(v)[:, None, None]
-        depth = 1.0 / (inv_far + t[:, 0] * (inv_near - inv_far))  # [BV,H,W] in (near, far)
+        depth = 1.0 / (inv_far[:, 0] + t[:, 0] * (inv_near - inv_far)[:, 0])  # [BV,H,W]
 
         g = self.adapter(
             rfeat, conf, images.flatten(0, 1), depth, K.flatten(0, 1), w2c.flatten(0, 1)

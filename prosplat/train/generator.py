@@ -269,6 +269,9 @@ class TrainConfig:
     # with a prosplat ``init`` without it: add the images' own ZNCC plane sweep with this odd
     # window to the depth head through zero weights (grow.grow_image_matching); 0 = off
     grow_image_matching: int = 0
+    # with a prosplat ``init`` without it: add the learned depth sweep over this many band
+    # depths after the depth refiner, through a zero convolution (grow.grow_band); 0 = off
+    grow_band: int = 0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -314,7 +317,9 @@ class TrainConfig:
             raise ValueError(
                 f"grow_image_matching is an odd window (0: off), got {self.grow_image_matching}"
             )
-        for name in ("grow_fine_matching", "grow_alexnet", "grow_image_matching"):
+        if self.grow_band < 0 or self.grow_band == 1:
+            raise ValueError(f"grow_band is a candidate count >= 2 (0: off), got {self.grow_band}")
+        for name in ("grow_fine_matching", "grow_alexnet", "grow_image_matching", "grow_band"):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
 
@@ -662,7 +667,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         pipe = None
     else:
         init_state = None
-        if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_image_matching:
+        if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_image_matching or cfg.grow_band:
             model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
@@ -868,11 +873,16 @@ def _init_weights(cfg: TrainConfig):
 def _grown_init(cfg: TrainConfig):
     """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
     channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by the image cost volume of
-    ``cfg.grow_image_matching``; on a resume only the config is used (the checkpoint holds
-    the weights)."""
+    ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``; on a resume only the
+    config is used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
-    from prosplat.generator.grow import grow_alexnet, grow_fine_matching, grow_image_matching
+    from prosplat.generator.grow import (
+        grow_alexnet,
+        grow_band,
+        grow_fine_matching,
+        grow_image_matching,
+    )
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
     if "config" not in meta:
@@ -884,6 +894,8 @@ def _grown_init(cfg: TrainConfig):
         config, state = grow_alexnet(config, state, cfg.grow_alexnet)
     if cfg.grow_image_matching:
         config, state = grow_image_matching(config, state, cfg.grow_image_matching)
+    if cfg.grow_band:
+        config, state = grow_band(config, state, cfg.grow_band)
     return config, state
 
 
