@@ -109,21 +109,17 @@ def test_image_matching_feeds_the_depth_head_and_gets_gradients():
         TrainConfig(data="x", out="y", grow_image_matching=5)
 
 
-@pytest.mark.parametrize("fine", [0, 4])
-def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
-    """Growing weights by the image sweep gives the same Gaussians as the original network
-    (its U-Net channels and its prior gain start at zero), with or without a fine cost volume
-    before it in the U-Net's input, and a gradient step opens both paths."""
-    from prosplat.generator.grow import grow_image_matching
-
+def _grown_then_trained(base: GeneratorConfig, grow, arg):
+    """Trained-looking weights of ``base`` (every tensor perturbed from its init) grown by
+    ``grow(base, state, arg)``: checks the grown network gives the same depths and Gaussians,
+    then takes one render-loss backward pass through it. -> (old state, grown config, grown
+    state, grown network with gradients)."""
     torch.manual_seed(3)
-    base = replace(SMALL, fine_matching_channels=fine)
     old = Generator(base).eval()
-    with torch.no_grad():  # trained weights are not at their init: perturb every tensor
+    with torch.no_grad():
         for p in old.parameters():
             p.add_(0.05 * torch.randn_like(p))
-    cfg, state = grow_image_matching(base, old.state_dict(), 5)
-    assert cfg == replace(base, image_matching_window=5)
+    cfg, state = grow(base, old.state_dict(), arg)
     new = Generator(cfg).eval()
     new.load_state_dict(state)
     cams = rig(3, 32, 32)
@@ -136,6 +132,19 @@ def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
     new.train()
     target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
     render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
+    return old.state_dict(), cfg, state, new
+
+
+@pytest.mark.parametrize("fine", [0, 4])
+def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
+    """Growing weights by the image sweep gives the same Gaussians as the original network
+    (its U-Net channels and its prior gain start at zero), with or without a fine cost volume
+    before it in the U-Net's input, and a gradient step opens both paths."""
+    from prosplat.generator.grow import grow_image_matching
+
+    base = replace(SMALL, fine_matching_channels=fine)
+    old, cfg, state, new = _grown_then_trained(base, grow_image_matching, 5)
+    assert cfg == replace(base, image_matching_window=5)
     grads = {n: p.grad for n, p in new.named_parameters()}
     assert grads["depth_head.image_gain"].abs() > 0
     d = base.num_depth_candidates
@@ -144,7 +153,7 @@ def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
     with pytest.raises(ValueError, match="already"):
         grow_image_matching(cfg, state, 5)
     with pytest.raises(ValueError, match="window"):
-        grow_image_matching(base, old.state_dict(), 0)
+        grow_image_matching(base, old, 0)
 
 
 # ---- the learned depth sweep (prosplat.generator.band) --------------------------------------
@@ -189,32 +198,17 @@ def test_the_band_starts_closed_and_moves_depth_within_its_span():
 
 
 def test_grow_band_reproduces_the_trained_network_then_learns():
+    """Growing weights by the band gives the same Gaussians (its last conv is zero), and a
+    gradient step opens it."""
     from prosplat.generator.grow import grow_band
 
-    torch.manual_seed(3)
-    old = Generator(SMALL).eval()
-    with torch.no_grad():
-        for p in old.parameters():
-            p.add_(0.05 * torch.randn_like(p))
-    cfg, state = grow_band(SMALL, old.state_dict(), 5)
+    old, cfg, state, new = _grown_then_trained(SMALL, grow_band, 5)
     assert cfg == replace(SMALL, band_candidates=5)
-    new = Generator(cfg).eval()
-    new.load_state_dict(state)
-    cams = rig(3, 32, 32)
-    images, K, w2c = batch(cams)
-    near, far = torch.tensor([NEAR]), torch.tensor([FAR])
-    with torch.no_grad():
-        a, b = old(images, K, w2c, near, far), new(images, K, w2c, near, far)
-    torch.testing.assert_close(b.depths, a.depths, atol=1e-5, rtol=1e-5)
-    torch.testing.assert_close(b.means, a.means, atol=1e-5, rtol=1e-5)
-    new.train()
-    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
-    render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
     assert new.band.delta.weight.grad.abs().max() > 0
     with pytest.raises(ValueError, match="already"):
         grow_band(cfg, state, 5)
     with pytest.raises(ValueError, match="candidates"):
-        grow_band(SMALL, old.state_dict(), 1)
+        grow_band(SMALL, old, 1)
     with pytest.raises(ValueError, match="band_candidates"):
         GeneratorConfig(band_candidates=1)
     with pytest.raises(ValueError, match="grow_band"):
