@@ -246,20 +246,17 @@ def test_fine_matching_adds_a_half_resolution_volume_that_gets_gradients():
         GeneratorConfig(fine_matching_channels=-1)
 
 
-def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
-    """Growing weights by a fine cost volume gives the same Gaussians as the original network
-    (the new inputs enter through zero weights), and a gradient step opens the new paths."""
-    from prosplat.generator.grow import grow_fine_matching
-
+def grown_then_trained(base: GeneratorConfig, grow, arg):
+    """Trained-looking weights of ``base`` (every tensor perturbed from its init) grown by
+    ``grow(base, state, arg)``: checks the grown network gives the same depths and Gaussians,
+    then takes one render-loss backward pass through it. -> (old state, grown config, grown
+    state, grown network with gradients)."""
     torch.manual_seed(3)
-    old = Generator(SMALL).eval()
-    with torch.no_grad():  # trained weights are not at their init: perturb every tensor
+    old = Generator(base).eval()
+    with torch.no_grad():
         for p in old.parameters():
             p.add_(0.05 * torch.randn_like(p))
-    cfg, state = grow_fine_matching(SMALL, old.state_dict(), 4)
-    assert (
-        cfg.fine_matching_channels == 4 and cfg.num_depth_candidates == SMALL.num_depth_candidates
-    )
+    cfg, state = grow(base, old.state_dict(), arg)
     new = Generator(cfg).eval()
     new.load_state_dict(state)
     cams = rig(3, 32, 32)
@@ -273,6 +270,18 @@ def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
     new.train()
     target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
     render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
+    return old.state_dict(), cfg, state, new
+
+
+def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
+    """Growing weights by a fine cost volume gives the same Gaussians as the original network
+    (the new inputs enter through zero weights), and a gradient step opens the new paths."""
+    from prosplat.generator.grow import grow_fine_matching
+
+    old, cfg, state, new = grown_then_trained(SMALL, grow_fine_matching, 4)
+    assert (
+        cfg.fine_matching_channels == 4 and cfg.num_depth_candidates == SMALL.num_depth_candidates
+    )
     grads = {n: p.grad for n, p in new.named_parameters()}
     assert grads["depth_head.fine_gain"].abs() > 0
     fine_slot = grads["depth_head.unet.inc.0.0.weight"][:, 8:16]  # the fine volume's channels
@@ -280,7 +289,7 @@ def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
     with pytest.raises(ValueError, match="already"):
         grow_fine_matching(cfg, state, 4)
     with pytest.raises(ValueError, match="channels"):
-        grow_fine_matching(SMALL, old.state_dict(), 0)
+        grow_fine_matching(SMALL, old, 0)
 
 
 def test_grow_alexnet_reproduces_the_trained_network_then_learns(tmp_path):

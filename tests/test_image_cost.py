@@ -9,7 +9,16 @@ from dataclasses import replace
 
 import pytest
 import torch
-from test_generator import FAR, NEAR, SMALL, batch, plane_features, render_loss, rig
+from test_generator import (
+    FAR,
+    NEAR,
+    SMALL,
+    batch,
+    grown_then_trained,
+    plane_features,
+    render_loss,
+    rig,
+)
 
 from prosplat import Camera
 from prosplat.generator import Generator, GeneratorConfig
@@ -109,32 +118,6 @@ def test_image_matching_feeds_the_depth_head_and_gets_gradients():
         TrainConfig(data="x", out="y", grow_image_matching=5)
 
 
-def _grown_then_trained(base: GeneratorConfig, grow, arg):
-    """Trained-looking weights of ``base`` (every tensor perturbed from its init) grown by
-    ``grow(base, state, arg)``: checks the grown network gives the same depths and Gaussians,
-    then takes one render-loss backward pass through it. -> (old state, grown config, grown
-    state, grown network with gradients)."""
-    torch.manual_seed(3)
-    old = Generator(base).eval()
-    with torch.no_grad():
-        for p in old.parameters():
-            p.add_(0.05 * torch.randn_like(p))
-    cfg, state = grow(base, old.state_dict(), arg)
-    new = Generator(cfg).eval()
-    new.load_state_dict(state)
-    cams = rig(3, 32, 32)
-    images, K, w2c = batch(cams)
-    near, far = torch.tensor([NEAR]), torch.tensor([FAR])
-    with torch.no_grad():
-        a, b = old(images, K, w2c, near, far), new(images, K, w2c, near, far)
-    torch.testing.assert_close(b.depths, a.depths, atol=1e-5, rtol=1e-5)
-    torch.testing.assert_close(b.means, a.means, atol=1e-5, rtol=1e-5)
-    new.train()
-    target = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(5))
-    render_loss(new, images[:, ::2], K[:, ::2], w2c[:, ::2], cams[1], target).backward()
-    return old.state_dict(), cfg, state, new
-
-
 @pytest.mark.parametrize("fine", [0, 4])
 def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
     """Growing weights by the image sweep gives the same Gaussians as the original network
@@ -143,7 +126,7 @@ def test_grow_image_matching_reproduces_the_trained_network_then_learns(fine):
     from prosplat.generator.grow import grow_image_matching
 
     base = replace(SMALL, fine_matching_channels=fine)
-    old, cfg, state, new = _grown_then_trained(base, grow_image_matching, 5)
+    old, cfg, state, new = grown_then_trained(base, grow_image_matching, 5)
     assert cfg == replace(base, image_matching_window=5)
     grads = {n: p.grad for n, p in new.named_parameters()}
     assert grads["depth_head.image_gain"].abs() > 0
@@ -202,7 +185,7 @@ def test_grow_band_reproduces_the_trained_network_then_learns():
     gradient step opens it."""
     from prosplat.generator.grow import grow_band
 
-    old, cfg, state, new = _grown_then_trained(SMALL, grow_band, 5)
+    old, cfg, state, new = grown_then_trained(SMALL, grow_band, 5)
     assert cfg == replace(SMALL, band_candidates=5)
     assert new.band.delta.weight.grad.abs().max() > 0
     with pytest.raises(ValueError, match="already"):
