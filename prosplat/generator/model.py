@@ -4,6 +4,9 @@ DepthSplat-style (ProSplat paper, Sec. III-B): per-view CNN features refined by 
 attention build a plane-sweep cost volume against each view's nearest views; a monocular branch
 adds single-view cues; a U-Net turns both into a per-pixel depth distribution, which is
 upsampled to full resolution, and an adapter turns every pixel into a Gaussian on its ray.
+Optional, grown into trained weights: a second cost volume of the input images' own ZNCC
+beside the learned one (``image_matching_window``), and a learned depth sweep in a band around
+the refined depth (``band_candidates``).
 """
 
 from __future__ import annotations
@@ -201,6 +204,34 @@ class Generator(nn.Module):
         window = self.config.image_matching_window
         return image_cost_volume(half, K_half, w2c, candidates, neighbours, window, pool=2)
 
+    def _band_t(
+        self,
+        xm: Tensor,
+        t: Tensor,
+        rfeat: Tensor,
+        K: Tensor,
+        w2c: Tensor,
+        inv_near: Tensor,
+        inv_far: Tensor,
+        image_size,
+    ) -> Tensor:
+        """The learned depth sweep (:mod:`prosplat.generator.band`) on the refiner's ``t
+        [BV,1,Hm,Wm]``: to depth, moved within the band, back to t. ``xm [B,V,3,Hm,Wm]`` in
+        [-1, 1], ``rfeat [BV,R,Hm,Wm]``, ``K`` for the full ``image_size (H, W)``,
+        ``inv_near``/``inv_far`` [BV,1,1,1]."""
+        h, w = image_size
+        b, v, _, hm, wm = xm.shape
+        depth = 1.0 / (inv_far + t * (inv_near - inv_far))  # [BV,1,Hm,Wm]
+        depth = self.band(
+            (xm + 1) / 2,
+            depth.view(b, v, hm, wm),
+            rfeat,
+            scale_intrinsics(K, wm / w, hm / h),
+            w2c,
+            nearest_views(w2c, self.config.cost_volume_views),
+        ).view(b * v, 1, hm, wm)
+        return ((1.0 / depth - inv_far) / (inv_near - inv_far)).clamp(0, 1)
+
     def _match_images(self, x: Tensor, match_size: tuple[int, int]) -> Tensor:
         """x [B,V,3,H,W] -> [B,V,3,Hm,Wm], antialiased bilinear (as :func:`resize_views`)."""
         hm, wm = (int(s) for s in match_size)
@@ -263,24 +294,16 @@ class Generator(nn.Module):
         inv_near = (1.0 / near).repeat_interleave(v)[:, None, None, None]  # [BV,1,1,1]
         inv_far = (1.0 / far).repeat_interleave(v)[:, None, None, None]
         if self.band is not None:  # the learned depth sweep, at the matching size
-            hm, wm = xm.shape[-2:]
-            depth_m = 1.0 / (inv_far + t * (inv_near - inv_far))  # [BV,1,Hm,Wm]
-            depth_m = self.band(
-                (xm + 1) / 2,
-                depth_m.view(b, v, hm, wm),
-                rfeat,
-                scale_intrinsics(K, wm / w, hm / h),
-                w2c,
-                nearest_views(w2c, cfg.cost_volume_views),
-            ).view(b * v, 1, hm, wm)
-            t = ((1.0 / depth_m - inv_far) / (inv_near - inv_far)).clamp(0, 1)
+            t = self._band_t(xm, t, rfeat, K, w2c, inv_near, inv_far, (h, w))
         if tuple(t.shape[-2:]) != (h, w):  # matched smaller: to the inputs' size
             maps = F.interpolate(
                 torch.cat([t, conf, rfeat], 1), size=(h, w), mode="bilinear", align_corners=False
             )  # [BV,2+R,H,W]
             t, conf, rfeat = maps[:, :1], maps[:, 1:2], maps[:, 2:]
 
-        depth = 1.0 / (inv_far[:, 0] + t[:, 0] * (inv_near - inv_far)[:, 0])  # [BV,H,W]
+        depth = 1.0 / (
+            inv_far[:, 0] + t[:, 0] * (inv_near - inv_far)[:, 0]
+        )  # [BV,H,W] in (near, far)
 
         g = self.adapter(
             rfeat, conf, images.flatten(0, 1), depth, K.flatten(0, 1), w2c.flatten(0, 1)
