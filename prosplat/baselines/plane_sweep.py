@@ -109,6 +109,41 @@ def box_mean(x: Tensor, window: int = WINDOW) -> Tensor:
     return y / count
 
 
+def patch_mean_var(ref: Tensor, window: int = WINDOW) -> tuple[Tensor, Tensor]:
+    """[N,C,H,W] images -> the mean [N,C,H,W] and the variance [N,H,W] (summed over the
+    channels: a patch's colours are one vector) of every ``window`` x ``window`` patch."""
+    mu = box_mean(ref, window)
+    # pooling is linear, so the channel sums are taken before it: 1 channel pooled, not C
+    var = box_mean((ref * ref).sum(1, keepdim=True), window)[:, 0] - (mu * mu).sum(1)
+    return mu, var
+
+
+def window_zncc(
+    warped: Tensor,
+    ref: Tensor,
+    mu_ref: Tensor,
+    var_ref: Tensor,
+    window: int = WINDOW,
+    eps: float = ZNCC_EPS,
+) -> tuple[Tensor, Tensor]:
+    """ZNCC of every ``window`` x ``window`` patch of ``warped [N,C,...,H,W]`` (channels on
+    dim 1, any dims between) against the reference's, whose ``ref``, ``mu_ref`` (broadcast
+    against ``warped``) and ``var_ref`` (against ``warped`` without its channel dim) come from
+    :func:`patch_mean_var`. Returns (ZNCC [N,...,H,W] in [-1, 1], the warped patches' mean
+    [N,C,...,H,W]). ``eps`` is added to var_ref · var_warped: flat patches correlate to 0.
+    The three statistics of ``warped`` go through one box filter."""
+    c = warped.shape[1]
+    stats = torch.cat(
+        [warped, (warped * warped).sum(1, keepdim=True), (warped * ref).sum(1, keepdim=True)], 1
+    )  # [N,C+2,...,H,W]
+    stats = box_mean(stats, window)
+    mu = stats[:, :c]
+    var = (stats[:, c] - (mu * mu).sum(1)).clamp_min(0)
+    cov = stats[:, c + 1] - (mu * mu_ref).sum(1)
+    zncc = cov / torch.sqrt(var_ref.clamp_min(0) * var + eps)
+    return zncc.clamp(-1, 1), mu
+
+
 def zncc_cost(
     images: Tensor,
     cameras: list[Camera],
@@ -130,9 +165,7 @@ def zncc_cost(
     dtype, device = images.dtype, images.device
     cam = cameras[ref]
     img = images[ref : ref + 1]  # [1,3,H,W]
-    mu_r = box_mean(img)
-    # pooling is linear, so the channel sums are taken before it: 1 channel pooled, not 3
-    var_r = box_mean((img * img).sum(1, keepdim=True))[:, 0] - (mu_r * mu_r).sum(1)  # [1,H,W]
+    mu_r, var_r = patch_mean_var(img)  # [1,3,H,W], [1,H,W]
     uv = cam.pixel_centers(torch.float64).to(device)  # [H,W,2]
     sources = [s for s in range(v) if s != ref]
     select = best_views is not None and len(sources) > best_views
@@ -177,11 +210,8 @@ def zncc_cost(
                 align_corners=False,
             )  # [1,3,C*H,W]
             warped = warped.reshape(3, -1, h, w).transpose(0, 1)  # [C,3,H,W]
-            mu_s = box_mean(warped)
-            var_s = box_mean((warped * warped).sum(1, keepdim=True))[:, 0] - (mu_s * mu_s).sum(1)
-            cov = box_mean((warped * img).sum(1, keepdim=True))[:, 0] - (mu_s * mu_r).sum(1)
-            zncc = cov / torch.sqrt(var_r.clamp_min(0) * var_s.clamp_min(0) + ZNCC_EPS)
-            c = 1 - zncc.clamp(-1, 1) + COLOR_WEIGHT * (mu_s - mu_r).abs().mean(1)
+            zncc, mu_s = window_zncc(warped, img, mu_r, var_r)  # [C,H,W], [C,3,H,W]
+            c = 1 - zncc + COLOR_WEIGHT * (mu_s - mu_r).abs().mean(1)
             if select:
                 cost[n, k0 : k0 + chunk] = c
                 valid_all[n, k0 : k0 + chunk] = valid

@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.baselines.plane_sweep import box_mean
+from prosplat.baselines.plane_sweep import patch_mean_var, window_zncc
 from prosplat.generator.cost_volume import warp_grid
 
 #: Added to var_ref · var_src (images in [0, 1], variances summed over the channels): two
@@ -60,12 +60,9 @@ def image_cost_volume(
     if h % pool or w % pool:
         raise ValueError(f"image_cost_volume: {w}x{h} is not divisible by pool={pool}")
     ref = images.flatten(0, 1)  # [BV,C,H,W]
-    mu_r = box_mean(ref, window)  # [BV,C,H,W]
-    var_r = box_mean((ref * ref).sum(1, keepdim=True), window) - (mu_r * mu_r).sum(
-        1, keepdim=True
-    )  # [BV,1,H,W]
-    var_r = var_r.clamp(min=0)
-    ref_d, mu_r_d = ref[:, :, None], mu_r[:, :, None]  # [BV,C,1,H,W]: against every plane
+    mu_r, var_r = patch_mean_var(ref, window)  # [BV,C,H,W], [BV,H,W]
+    # against every plane: [BV,C,1,H,W] x2 and [BV,1,H,W]
+    ref_d, mu_r_d, var_r_d = ref[:, :, None], mu_r[:, :, None], var_r[:, None]
     bidx = torch.arange(b, device=images.device)[:, None]  # [B,1]
     total = images.new_zeros(b * v, d, h, w)
     seen = images.new_zeros(b * v, d, h, w)
@@ -76,16 +73,7 @@ def image_cost_volume(
         src = images[bidx, nbr].reshape(b * v, c, h, w)  # [BV,C,H,W]
         warped = F.grid_sample(src, grid.reshape(b * v, d * h, w, 2), align_corners=False)
         warped = warped.view(b * v, c, d, h, w)  # [BV,C,D,H,W]
-        # one box filter for every statistic: the warped channels, sum s², sum s·r
-        stats = torch.cat(
-            [warped, (warped * warped).sum(1, keepdim=True), (warped * ref_d).sum(1, keepdim=True)],
-            1,
-        )  # [BV,C+2,D,H,W]
-        stats = box_mean(stats, window)
-        mu_s = stats[:, :c]  # [BV,C,D,H,W]
-        var_s = (stats[:, c] - (mu_s * mu_s).sum(1)).clamp(min=0)  # [BV,D,H,W]
-        cov = stats[:, c + 1] - (mu_s * mu_r_d).sum(1)  # [BV,D,H,W]
-        zncc = (cov / (var_r * var_s + ZNCC_EPS).sqrt()).clamp(-1, 1)
+        zncc, _ = window_zncc(warped, ref_d, mu_r_d, var_r_d, window, ZNCC_EPS)  # [BV,D,H,W]
         total = total + zncc * inside
         seen = seen + inside
     mean = total / seen.clamp(min=1)  # [BV,D,H,W]
