@@ -645,6 +645,11 @@ def test_reconstruct_derives_near_far_and_rejects_coincident_cameras():
     assert (out.depths >= near * 0.999).all() and (out.depths <= far * 1.001).all()
     assert out.means.grad_fn is None
     assert model.reconstruct_full(images, cams, grad=True).means.requires_grad
+    # the generator's mode comes back as it was, every submodule with it (training resumes)
+    for training in (True, False):
+        model.generator.train(training)
+        model.reconstruct_full(images, cams)
+        assert {m.training for m in model.generator.modules()} == {training}
     rotated = Camera.look_at(cams[0].center, (1.0, 0.0, 0.0), (0, -1, 0), 28.8, 32, 32)
     with pytest.raises(ValueError, match="same place"):
         model.reconstruct(images, [cams[0], rotated, cams[1]])
