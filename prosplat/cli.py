@@ -627,6 +627,12 @@ def build_parser() -> argparse.ArgumentParser:
         "128-px camera, as the pipeline renders them (default 1)",
     )
     tg.add_argument(
+        "--fill-holes",
+        action="store_true",
+        help="score every render with its holes filled (pull-push from its own colours), as "
+        "stage 2 and the raw view see it, instead of black",
+    )
+    tg.add_argument(
         "--any-view",
         action="store_true",
         help="draw inputs and targets from all of a scene's views, not its input/target split",

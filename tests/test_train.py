@@ -507,11 +507,15 @@ def test_render_loss_fused_projection_matches_the_torch_projection(dataset):
         torch.testing.assert_close(g1[name], g0[name], rtol=1e-3, atol=1e-6, msg=name)
 
 
-def test_render_loss_is_the_mean_of_per_camera_losses(dataset):
+@pytest.mark.parametrize("fill", [False, True])
+def test_render_loss_is_the_mean_of_per_camera_losses(dataset, fill):
     """render_loss renders each group's cameras together (one gsplat call on a GPU); its
-    parts are still the per-camera means it documents, recomputed here camera by camera."""
+    parts are still the per-camera means it documents, recomputed here camera by camera.
+    With fill_holes every render is scored as filled by pull-push (the depth term keeps its
+    own coverage test)."""
     from prosplat import render
     from prosplat.metrics import LPIPS, ssim
+    from prosplat.render.hole_fill import fill_holes
     from prosplat.train.generator import _model_inputs, batch_cameras, render_loss
 
     torch.manual_seed(0)
@@ -520,9 +524,10 @@ def test_render_loss_is_the_mean_of_per_camera_losses(dataset):
     batch = {k: torch.stack([it[k] for it in items]) for k in items[0]}
     cfg = TrainConfig(
         data="x", out="x", lpips_weight=0.3, ssim_weight=0.2, depth_weight=0.1,
-        depth_loss="log", input_render_weight=0.5,
+        depth_loss="log", input_render_weight=0.5, fill_holes=fill,
     )  # fmt: skip
     lpips_fn = LPIPS()
+    holes = 0.0  # the summed squared change the fill makes, to show it had holes to fill
     with torch.no_grad():
         output = model(*_model_inputs(batch))
         loss, parts = render_loss(output, batch, cfg, lpips_fn=lpips_fn, cpu_backend="cpu")
@@ -535,17 +540,20 @@ def test_render_loss_is_the_mean_of_per_camera_losses(dataset):
                 cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
                 for j, cam in enumerate(cams):
                     out = render(g, cam, backend="cpu")
-                    mse = float(((out.rgb - images[j]) ** 2).mean())
+                    rgb = fill_holes(out.rgb, out.alpha) if fill else out.rgb
+                    holes += float(((rgb - out.rgb) ** 2).sum())
+                    mse = float(((rgb - images[j]) ** 2).mean())
                     want["mse"] += weight * mse
                     want["input_mse"] += mse if group == "input" else 0.0
-                    want["lpips"] += weight * float(lpips_fn(out.rgb, images[j]))
-                    want["ssim"] += weight * (1 - float(ssim(out.rgb, images[j])))
+                    want["lpips"] += weight * float(lpips_fn(rgb, images[j]))
+                    want["ssim"] += weight * (1 - float(ssim(rgb, images[j])))
                     gt_d = batch[f"{group}_depths"][b, j]
                     valid = (gt_d > 0) & (out.alpha > 0.5)
                     want["depth"] += weight * float(
                         (out.depth[valid].clamp_min(1e-3).log() - gt_d[valid].log()).abs().mean()
                     )
     assert want["depth"] > 0 and want["input_mse"] > 0
+    assert (holes > 1.0) == fill  # the untrained model's renders leave holes
     for key in ("mse", "lpips", "ssim", "depth"):
         assert parts[key] == pytest.approx(want[key] / 4, rel=1e-4), key
     assert parts["input_mse"] == pytest.approx(want["input_mse"] / 4, rel=1e-4)

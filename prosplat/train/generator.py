@@ -64,6 +64,7 @@ from torch import Tensor
 from prosplat.camera import Camera
 from prosplat.generator.config import MAX_ALEXNET_LAYERS
 from prosplat.render import render
+from prosplat.render.hole_fill import fill_holes
 from prosplat.train.common import (
     Dist,
     changed_settings,
@@ -241,6 +242,11 @@ class TrainConfig:
     # the input cameras re-rendered from ALL views' Gaussians, scored like targets (colour, and
     # depth with depth_weight): makes the views' Gaussians agree where they see one surface
     input_render_weight: float = 0.0
+    # score every render with its holes filled by pull-push (prosplat.render.hole_fill), as the
+    # product shows a raw render and stage 2 sees it: a black hole costs more than any surface
+    # gains (BENCHMARKS "Holes"), which pushes Gaussians out over what no input saw; filled,
+    # a hole costs what the continuation of its surroundings misses
+    fill_holes: bool = False
     # image sizes drawn per step (e.g. "64,128"; empty = the data's size): one set of weights
     # for every size; data is downsampled, never upsampled
     sizes: str = ""
@@ -403,6 +409,8 @@ def render_loss(
             h, w = images.shape[-2:]
             cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
             rgb, alpha, depth = _render_views(gaussians, cams, bg, cpu_backend)  # [C,3,H,W]
+            if cfg.fill_holes:
+                rgb = fill_holes(rgb, alpha)  # [C,3,H,W], covered pixels unchanged
             mse = ((rgb - images) ** 2).mean(dim=(1, 2, 3))  # [C]
             if group == "input":
                 sums["input_mse"] = sums["input_mse"] + mse.detach().sum()
