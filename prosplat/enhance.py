@@ -22,6 +22,7 @@ distribution. In both cases :func:`render_view` returns the raw render and says 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -47,6 +48,30 @@ from prosplat.render.hole_fill import fill_colour
 #: them (+0.08 / -0.00 dB, some types lose); refined Gaussians, fitted at their own size,
 #: gain nothing (BENCHMARKS "Splat scale").
 SPLAT_SCALE = 0.5
+
+
+def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) -> Tensor:
+    """[N] bool: the Gaussians that ``camera`` draws with a standard deviation wider than
+    ``max_radius`` times the view's shorter side, along the splat's widest direction (the
+    rasterizer's own projection, :func:`prosplat.render.projection.project_gaussians`);
+    Gaussians it does not draw (behind it) are never flagged.
+
+    Why a view would leave them out: a pixel-aligned Gaussian is about one input pixel wide
+    at its input's depth. Seen that large it lies far nearer this camera than any input
+    saw it, which on the test scenes means a floater or another view's far background
+    passing in front of this camera: a few such splats grey out a whole tabletop view
+    (BENCHMARKS "Oversized splats"). Drawn, it could only blur; left out, the fill or stage 2
+    paints the place from what surrounds it."""
+    from prosplat.render.projection import project_gaussians
+
+    if not (math.isfinite(max_radius) and max_radius > 0):
+        raise ValueError(f"max_radius must be a finite number > 0, got {max_radius!r}")
+    p = project_gaussians(gaussians.detach(), camera)
+    a, b, c = p.conics.to(torch.float64).unbind(-1)  # the inverse 2D covariance [N] each
+    # its smallest eigenvalue is 1 / (the widest standard deviation)²
+    low = (a + c) / 2 - torch.sqrt(((a - c) / 2) ** 2 + b * b)  # [N]
+    limit = max_radius * min(camera.width, camera.height)
+    return p.valid & (low * limit * limit < 1)
 
 
 @dataclass
@@ -242,6 +267,7 @@ def render_view(
     options: EnhanceOptions | None = None,
     fill_holes: bool = False,
     splat_scale: float = 1.0,
+    max_splat_radius: float | None = None,
 ) -> EnhancedView:
     """Render ``camera`` and, when ``improver`` is given, enhance it with the MORI reference
     chosen among ``cameras`` (whose images are ``images [N,3,H,W]``).
@@ -257,8 +283,12 @@ def render_view(
     ``splat_scale``: the Gaussians render with their scales multiplied by it
     (:meth:`Gaussians.with_scale_factor`; ``raw``, ``alpha``, ``depth`` and stage 2's input
     are that render). :data:`SPLAT_SCALE` suits the generator's unrefined Gaussians in a filled
-    raw view; 1 (the default) is the Gaussians as they are."""
+    raw view; 1 (the default) is the Gaussians as they are.
+    ``max_splat_radius``: Gaussians that this camera would see wider than this fraction of
+    its shorter side are left out of the view (:func:`oversized_splats`); None draws all."""
     options = options or EnhanceOptions()
+    if max_splat_radius is not None:  # judged at their own size, before splat_scale
+        gaussians = gaussians[~oversized_splats(gaussians, camera, max_splat_radius)]
     as_given, gaussians = gaussians, gaussians.with_scale_factor(splat_scale)
     if fill_holes and background is not None:
         raise ValueError(

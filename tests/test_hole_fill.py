@@ -160,3 +160,71 @@ def test_splat_scale_renders_the_gaussians_smaller_and_a_guarded_view_at_their_o
     assert torch.equal(guarded.image, render(g, cam).rgb)  # the Gaussians as given, on black
     filled = render_view(g, cam, images, [cam], scribbler, splat_scale=0.5, fill_holes=True)
     assert filled.guard is not None and torch.allclose(filled.image, view.image)
+
+
+def test_oversized_splats_are_the_ones_the_rasterizer_draws_that_wide():
+    """:func:`oversized_splats` against the rasterizer's 2D covariance, inverted and
+    diagonalised here (its conic is what the rasterizer draws): a Gaussian is flagged exactly
+    when its widest standard deviation exceeds the limit; Gaussians behind the camera never
+    are."""
+    from prosplat.enhance import oversized_splats
+    from prosplat.render.projection import project_gaussians
+
+    cam = Camera.look_at((0.0, 0.0, -4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, 64, 48)
+    gen = torch.Generator().manual_seed(3)
+    n = 400
+    depth = torch.empty(n).uniform_(0.3, 6.0, generator=gen)  # along the axis, from the camera
+    xy = (torch.rand(n, 2, generator=gen) - 0.5) * 0.4 * depth[:, None]  # near the image centre
+    means = torch.cat([xy, (depth - 4.0)[:, None]], 1)
+    scales = torch.empty(n, 3).uniform_(0.002, 0.4, generator=gen)
+    g = Gaussians(
+        means,
+        torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=1),
+        scales,
+        torch.full((n,), 0.9),
+        torch.zeros(n, 1, 3),
+    )
+    limit_frac = 0.1
+    flagged = oversized_splats(g, cam, limit_frac)
+    p = project_gaussians(g, cam)
+    a, b, c = p.conics.to(torch.float64).unbind(-1)
+    det = a * c - b * b
+    cov = torch.stack([c / det, -b / det, -b / det, a / det], -1).view(n, 2, 2)
+    sigma = torch.linalg.eigvalsh(cov)[:, -1].sqrt()  # the widest direction, px
+    limit = limit_frac * min(cam.width, cam.height)
+    clear = ((sigma / limit - 1).abs() > 1e-6) & p.valid  # rounding decides at the limit
+    assert clear.sum() > 300 and flagged[clear].any() and (~flagged[clear]).any()
+    assert torch.equal(flagged[clear], (sigma > limit)[clear])
+    assert not flagged[~p.valid].any()
+    behind = Gaussians(
+        torch.tensor([[0.0, 0.0, -4.5]]),  # behind the camera at z = -4
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+        torch.full((1, 3), 5.0),
+        torch.ones(1),
+        torch.zeros(1, 1, 3),
+    )
+    assert not oversized_splats(behind, cam, limit_frac).any()
+    for bad in (0.0, -0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="max_radius"):
+            oversized_splats(g, cam, bad)
+
+
+def test_render_view_leaves_out_oversized_splats():
+    """``max_splat_radius``: one huge Gaussian just in front of the camera greys out the whole
+    view; with the cap the view is bitwise the render without it, and the wall's own splats
+    (about 2 px wide) all stay."""
+    g, cam = _half_scene()
+    blob = Gaussians(
+        torch.tensor([[0.0, 0.0, -2.5]]),  # 0.5 in front of the camera, 1 sigma = 0.2
+        torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+        torch.full((1, 3), 0.2),
+        torch.full((1,), 0.8),
+        torch.zeros(1, 1, 3),
+    )
+    both = Gaussians.cat([g, blob])
+    assert not torch.allclose(render(both, cam).rgb, render(g, cam).rgb, atol=0.05)
+    view = render_view(both, cam, max_splat_radius=0.25)
+    assert torch.equal(view.image, render(g, cam).rgb)
+    filled = render_view(both, cam, fill_holes=True, max_splat_radius=0.25)
+    assert torch.equal(filled.image, render_view(g, cam, fill_holes=True).image)
+    assert torch.equal(render_view(both, cam).image, render(both, cam).rgb)  # off by default

@@ -384,6 +384,7 @@ def test_eval_ladder_end_to_end(data, tmp_path, capsys):
         (["--refine-seconds", "0"], "--refine-seconds: [0.0] must be > 0"),
         (["--distill-steps", "0"], "--distill-steps: [0] must be >= 1"),
         (["--splat-scales", "0"], "--splat-scales: [0.0] must be finite and > 0"),
+        (["--max-splat-radius", "0"], "--max-splat-radius: [0.0] must be finite and > 0"),
         (["--generator-size", "48"], "--generator-size 48 is not a multiple of 32"),
     ],
 )
@@ -593,6 +594,39 @@ def test_splat_rows_draw_the_generator_gaussians_smaller_in_filled_and_enhanced_
     again = render_view(g, cam, inp.images, inp.cameras, ctx.improver("splat"), splat_scale=0.5)
     assert torch.allclose(enh, again.image)
     assert not torch.allclose(enh, rungs["generator"].view(g, cam, inp).image)
+
+
+def test_cull_rows_leave_out_the_splats_a_target_sees_too_wide(data):
+    """``--rows cull --max-splat-radius R``: the same reconstruction as the ``generator`` row,
+    drawn without the splats the target sees wider than R of its shorter side (what
+    ``render_view(..., max_splat_radius=R)`` returns, filled and enhanced); without a radius
+    the rows skip."""
+    from prosplat.enhance import oversized_splats, render_view
+
+    messages = []
+    assert build_rungs(["cull"], LadderContext({}), log=messages.append) == []
+    assert any("--max-splat-radius" in m for m in messages)
+    ctx = LadderContext({"max_splat_radius": [0.02]})
+    rungs = {r.name: r for r in build_rungs(["generator", "cull"], ctx)}
+    assert list(rungs) == ["generator", "generator filled ≤0.02", "enhanced ≤0.02"]
+    assert {r.shares for r in rungs.values()} == {"generator"}
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    g = rungs["generator"].reconstruct(inp)
+    cam = scene.cameras[scene.target_indices[0]]
+    wide = oversized_splats(g, cam, 0.02)
+    assert 0 < int(wide.sum()) < len(g)  # a small radius: some are left out, not all
+    kept = render(g[~wide], cam)
+    filled = rungs["generator filled ≤0.02"].view(g, cam, inp)
+    assert torch.equal(filled.alpha, kept.alpha) and torch.equal(filled.depth, kept.depth)
+    expected = render_view(g, cam, inp.images, inp.cameras, fill_holes=True, max_splat_radius=0.02)
+    assert torch.equal(filled.image, expected.image)
+    enh = rungs["enhanced ≤0.02"].view(g, cam, inp).image
+    again = render_view(
+        g, cam, inp.images, inp.cameras, ctx.improver("cull"), max_splat_radius=0.02
+    )
+    assert torch.allclose(enh, again.image)
 
 
 def test_no_depth_sweep_reaches_the_model_and_the_command_line():

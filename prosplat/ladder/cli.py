@@ -17,7 +17,7 @@ from pathlib import Path
 
 #: the rows run by default (per-scene optimisation joins when --opt-steps is given)
 DEFAULT_ROWS = (
-    "flat", "paste", "optimize", "generator", "enhanced", "fill", "splat", "warp", "refine",
+    "flat", "paste", "optimize", "generator", "enhanced", "fill", "splat", "cull", "warp", "refine",
     "distill", "true-depth", "depthsplat",
 )  # fmt: skip
 
@@ -45,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the generator's Gaussians drawn at these multiples of their "
                         "scales in filled and enhanced views, e.g. 0.5: rows 'generator filled "
                         "×S', 'enhanced ×S', 'enhanced filled ×S'")  # fmt: skip
+    parser.add_argument("--max-splat-radius", type=float, nargs="*", default=[],
+                        help="with the 'cull' rows: leave out the splats a target would see "
+                        "wider than these fractions of its shorter side, e.g. 0.1: rows "
+                        "'generator filled ≤R', 'enhanced ≤R'")  # fmt: skip
     parser.add_argument("--generator", default=None, help="generator checkpoint (default shipped)")
     parser.add_argument("--generator-size", type=int, default=None,
                         help="run the generator at most this high (px, a multiple of 32; default: "
@@ -85,6 +89,8 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--refine-steps: {bad} must be >= 1")
     if bad := [s for s in args.distill_steps if s < 1]:
         raise ValueError(f"--distill-steps: {bad} must be >= 1")
+    if bad := [r for r in args.max_splat_radius if not 0 < r < float("inf")]:
+        raise ValueError(f"--max-splat-radius: {bad} must be finite and > 0")
     if bad := [s for s in args.splat_scales if not 0 < s < float("inf")]:
         raise ValueError(f"--splat-scales: {bad} must be finite and > 0")
     if bad := [s for s in args.refine_seconds if not s > 0]:
@@ -127,7 +133,10 @@ def command(args: argparse.Namespace) -> str:
     parts += ["--sizes", *map(str, args.sizes), "--views", *map(str, args.views)]
     if list(args.rows) != list(DEFAULT_ROWS):
         parts += ["--rows", *args.rows]
-    for flag in ("opt_steps", "refine_steps", "refine_seconds", "distill_steps", "splat_scales"):
+    for flag in (
+        "opt_steps", "refine_steps", "refine_seconds", "distill_steps", "splat_scales",
+        "max_splat_radius",
+    ):  # fmt: skip
         if getattr(args, flag):
             parts += [f"--{flag.replace('_', '-')}", *(f"{v:g}" for v in getattr(args, flag))]
     for flag in ("generator", "generator_size", "improve", "depthsplat", "budget", "scenes"):

@@ -217,16 +217,17 @@ def paste_rungs(ctx: LadderContext) -> list[Rung]:
 
 def splat_view(
     gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False,
-    splat_scale: float = 1.0,
+    splat_scale: float = 1.0, max_splat_radius: float | None = None,
 ) -> View:  # fmt: skip
     """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference);
     ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`);
-    ``splat_scale``: the Gaussians' scales multiplied by it (:func:`prosplat.enhance.render_view`)."""
+    ``splat_scale``: the Gaussians' scales multiplied by it; ``max_splat_radius``: splats
+    wider than that fraction of the view left out (:func:`prosplat.enhance.render_view`)."""
     from prosplat.enhance import render_view
 
     out = render_view(
         gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32,
-        fill_holes=fill_holes, splat_scale=splat_scale,
+        fill_holes=fill_holes, splat_scale=splat_scale, max_splat_radius=max_splat_radius,
     )  # fmt: skip
     return View(
         out.image,
@@ -353,6 +354,33 @@ def splat_rungs(ctx: LadderContext) -> list[Rung]:
         for suffix, imp in improvers.items():
             rungs.append(make(f"enhanced{suffix}", s, imp, fill=False))
             rungs.append(make(f"enhanced filled{suffix}", s, imp))
+    return rungs
+
+
+@register("cull")
+def cull_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's Gaussians without the splats a target would see wider than a fraction
+    of its shorter side (``--max-splat-radius``, :func:`prosplat.enhance.oversized_splats`):
+    rows ``generator filled ≤R`` and, per improvement model, ``enhanced ≤R``, on the same
+    reconstruction as the ``generator`` row, so they pair with ``generator filled`` and
+    ``enhanced`` target by target."""
+    radii = [float(r) for r in ctx.options.get("max_splat_radius") or []]
+    if not radii:
+        raise SkipRung("no splat radius asked for; pass --max-splat-radius 0.1")
+    recon, dtype = _generator_gaussians(ctx), _dtype(ctx)
+    improvers = ctx.improvers("cull")  # {} without an improvement model
+
+    def make(name: str, r: float, improver=None, fill: bool = True) -> Rung:
+        def view(g, cam: Camera, inp: SceneInputs) -> View:
+            return splat_view(g, cam, inp, improver, dtype, fill_holes=fill, max_splat_radius=r)
+
+        return Rung(f"{name} ≤{r:g}", recon, view, "generator", depth=True)
+
+    rungs = []
+    for r in radii:
+        rungs.append(make("generator filled", r))
+        for suffix, imp in improvers.items():
+            rungs.append(make(f"enhanced{suffix}", r, imp, fill=False))
     return rungs
 
 
