@@ -21,7 +21,7 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
-from prosplat.enhance import EnhancedView, EnhanceOptions, render_view
+from prosplat.enhance import MAX_SPLAT_RADIUS, EnhancedView, EnhanceOptions, render_view
 from prosplat.gaussians import Gaussians
 from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
 from prosplat.image_io import check_images
@@ -675,6 +675,7 @@ class ProSplat:
         options: EnhanceOptions | None = None,
         fill_holes: bool = False,
         splat_scale: float = 1.0,
+        max_splat_radius: float | None = MAX_SPLAT_RADIUS,
     ) -> EnhancedView:
         """Render ``camera`` and enhance it with the improvement model.
 
@@ -689,7 +690,8 @@ class ProSplat:
         test scenes). ``splat_scale``: the Gaussians' scales multiplied by it for this render
         (:data:`prosplat.enhance.SPLAT_SCALE` suits the generator's unrefined Gaussians in a
         filled raw view; refined ones, and views the shipped stage 2 enhances, are best left at
-        1).
+        1). ``max_splat_radius``: splats this camera would draw wider than that fraction of its
+        shorter side are left out (:func:`prosplat.enhance.oversized_splats`; None draws all).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with
@@ -714,6 +716,7 @@ class ProSplat:
             options=options,
             fill_holes=fill_holes,
             splat_scale=splat_scale,
+            max_splat_radius=max_splat_radius,
         )
 
     def distill(

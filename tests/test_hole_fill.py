@@ -209,10 +209,15 @@ def test_oversized_splats_are_the_ones_the_rasterizer_draws_that_wide():
             oversized_splats(g, cam, bad)
 
 
-def test_render_view_leaves_out_oversized_splats():
+def test_render_view_leaves_out_oversized_splats(monkeypatch):
     """``max_splat_radius``: one huge Gaussian just in front of the camera greys out the whole
-    view; with the cap the view is bitwise the render without it, and the wall's own splats
-    (about 2 px wide) all stay."""
+    view; with the cap (on by default) a filled view is bitwise the render without it, and
+    the wall's own splats (about 2 px wide) all stay; None draws everything, and so does a
+    raw view on black."""
+    from types import SimpleNamespace
+
+    from prosplat import enhance as enhance_module
+
     g, cam = _half_scene()
     blob = Gaussians(
         torch.tensor([[0.0, 0.0, -2.5]]),  # 0.5 in front of the camera, 1 sigma = 0.2
@@ -223,8 +228,19 @@ def test_render_view_leaves_out_oversized_splats():
     )
     both = Gaussians.cat([g, blob])
     assert not torch.allclose(render(both, cam).rgb, render(g, cam).rgb, atol=0.05)
-    view = render_view(both, cam, max_splat_radius=0.25)
-    assert torch.equal(view.image, render(g, cam).rgb)
     filled = render_view(both, cam, fill_holes=True, max_splat_radius=0.25)
-    assert torch.equal(filled.image, render_view(g, cam, fill_holes=True).image)
-    assert torch.equal(render_view(both, cam).image, render(both, cam).rgb)  # off by default
+    alone = render(g, cam)
+    assert torch.equal(filled.raw, alone.rgb)
+    assert torch.equal(filled.image, fill_holes(alone.rgb, alone.alpha))
+    assert torch.equal(render_view(both, cam, fill_holes=True).image, filled.image)  # default
+    every = render_view(both, cam, fill_holes=True, max_splat_radius=None)
+    assert torch.equal(every.raw, render(both, cam).rgb)
+    # a raw view on black draws every splat whatever the cap: its holes would stay black
+    assert torch.equal(render_view(both, cam, max_splat_radius=0.25).image, render(both, cam).rgb)
+    # so does a view the guard refuses to enhance, shown on black
+    monkeypatch.setattr(enhance_module, "enhance", lambda improver, raw, *a, **k: 1.0 - raw)
+    scribbler = SimpleNamespace(config=SimpleNamespace(warp_input=False))
+    images = torch.rand(1, 3, cam.height, cam.width)
+    guarded = render_view(both, cam, images, [cam], scribbler)
+    assert guarded.guard is not None and torch.equal(guarded.raw, alone.rgb)
+    assert torch.equal(guarded.image, render(both, cam).rgb)

@@ -35,6 +35,7 @@ import torch
 from torch import Tensor
 
 from prosplat.camera import Camera
+from prosplat.enhance import MAX_SPLAT_RADIUS
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import reference_warp, warp_for
 from prosplat.ladder.geometry import true_depth_gaussians
@@ -217,7 +218,7 @@ def paste_rungs(ctx: LadderContext) -> list[Rung]:
 
 def splat_view(
     gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False,
-    splat_scale: float = 1.0, max_splat_radius: float | None = None,
+    splat_scale: float = 1.0, max_splat_radius: float | None = MAX_SPLAT_RADIUS,
 ) -> View:  # fmt: skip
     """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference);
     ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`);

@@ -69,7 +69,8 @@ def render(
         camera: a pinhole :class:`~prosplat.Camera` without skew.
         background: [3] RGB behind the Gaussians (default black).
         backend: "auto", "cpu", "cpu-fused" (the CPU path with the projection as one C++
-            kernel, :mod:`prosplat.render.fused`, checked against "cpu") or "gsplat".
+            kernel, :mod:`prosplat.render.fused`, checked against "cpu") or "gsplat". "auto"
+            is gsplat where it runs (CUDA), else "cpu-fused".
         check: validate the Gaussians first (:meth:`Gaussians.validate`). False only in
             loops whose Gaussians are valid by construction and that watch their own loss
             for NaN (refinement): the check reads every value, every render.
@@ -81,8 +82,8 @@ def render(
     if check:
         gaussians.validate()
     bg = _background(background, gaussians.means)
-    if backend == "auto":
-        backend = "gsplat" if _gsplat_available(gaussians.device) else "cpu"
+    if backend == "auto":  # the fused projection: the same image, ~1.3x faster at 128 px
+        backend = "gsplat" if _gsplat_available(gaussians.device) else "cpu-fused"
     if backend == "gsplat":
         from prosplat.render.gsplat_backend import render_gsplat
 
