@@ -281,7 +281,10 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     t0 = time.perf_counter()
     for t in tqdm(scene.target_indices, desc="rendering + enhancing views", unit="view"):
         view = model.render(gaussians, cameras[t], in_images, in_cams, dtype=dtype)
-        gt, raw, enh = images[t], view.raw.clamp(0, 1), view.image.clamp(0, 1)
+        # the generator's own view, every splat on black (stage 2's input, view.raw, leaves
+        # out the oversized ones whose place it paints: prosplat.enhance.MAX_SPLAT_RADIUS)
+        raw = model.render(gaussians, cameras[t], enhance=False).image.clamp(0, 1)
+        gt, enh = images[t], view.image.clamp(0, 1)
         with torch.no_grad():
             scores = {
                 name: (float(fn(raw, gt)), float(fn(enh, gt)))
