@@ -518,6 +518,9 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
     pull-push fill of its holes, ``enhanced filled`` stage 2's view blended with that fill by
     the render's alpha; both share the generator's reconstruction and are scored closer to
     the target than black holes where the render leaves any."""
+    from types import SimpleNamespace
+
+    from prosplat.enhance import MAX_SPLAT_RADIUS, oversized_splats
     from prosplat.render.hole_fill import fill_colour, fill_holes
 
     rungs = {r.name: r for r in build_rungs(["generator", "enhanced", "fill"], LadderContext({}))}
@@ -535,7 +538,10 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
     wide = Camera(target.K * torch.tensor([[0.3], [0.3], [1.0]]), target.world_to_cam,
                   target.width, target.height)  # sees past what the inputs saw: holes  # fmt: skip
     for cam in (target, wide):
-        raw = rungs["generator"].view(g, cam, inp)
+        # filled and enhanced views leave out the oversized splats (prosplat.enhance)
+        kept = g[~oversized_splats(g, cam, MAX_SPLAT_RADIUS)]
+        raw = render(kept, cam)
+        raw = SimpleNamespace(image=raw.rgb, alpha=raw.alpha)
         enh = rungs["enhanced"].view(g, cam, inp).image
         filled = rungs["generator filled"].view(g, cam, inp).image
         both = rungs["enhanced filled"].view(g, cam, inp).image
