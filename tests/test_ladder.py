@@ -499,11 +499,7 @@ def test_compare_improve_scores_several_stage2_models_on_one_reconstruction(data
     assert list(rungs) == ["generator", "enhanced", "enhanced (again)", "refine 2",
                            "refine 2 enhanced", "refine 2 enhanced (again)"]  # fmt: skip
     assert rungs["enhanced (again)"].shares == rungs["generator"].shares == "generator"
-    scene = load_scene(data / "tabletop_000001")
-    idx = pick_inputs(scene, 3)
-    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
-    g = rungs["generator"].reconstruct(inp)
-    cam = scene.cameras[scene.target_indices[0]]
+    inp, g, cam = _generator_on_tabletop(data, rungs["generator"])
     a = rungs["enhanced"].view(g, cam, inp).image
     b = rungs["enhanced (again)"].view(g, cam, inp).image
     assert torch.allclose(a, b) and not torch.allclose(
@@ -571,6 +567,15 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
     assert [r.name for r in only] == ["generator filled", "true depth filled"]
 
 
+def _generator_on_tabletop(data, generator_rung):
+    """The tabletop fixture's 3 inputs, the ``generator`` row's Gaussians of them, and the
+    scene's first target camera."""
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    return inp, generator_rung.reconstruct(inp), scene.cameras[scene.target_indices[0]]
+
+
 def test_splat_rows_draw_the_generator_gaussians_smaller_in_filled_and_enhanced_views(data):
     """``--rows splat --splat-scales S``: the same reconstruction as the ``generator`` row,
     its Gaussians' scales multiplied by S before the filled and the enhanced views are made
@@ -586,11 +591,7 @@ def test_splat_rows_draw_the_generator_gaussians_smaller_in_filled_and_enhanced_
         "generator", "generator filled ×0.5", "enhanced ×0.5", "enhanced filled ×0.5",
     ]  # fmt: skip
     assert {r.shares for r in rungs.values()} == {"generator"}
-    scene = load_scene(data / "tabletop_000001")
-    idx = pick_inputs(scene, 3)
-    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
-    g = rungs["generator"].reconstruct(inp)
-    cam = scene.cameras[scene.target_indices[0]]
+    inp, g, cam = _generator_on_tabletop(data, rungs["generator"])
     small = render(g.with_scale_factor(0.5), cam)
     filled = rungs["generator filled ×0.5"].view(g, cam, inp)
     assert torch.equal(filled.alpha, small.alpha) and torch.equal(filled.depth, small.depth)
@@ -616,11 +617,7 @@ def test_cull_rows_leave_out_the_splats_a_target_sees_too_wide(data):
     rungs = {r.name: r for r in build_rungs(["generator", "cull"], ctx)}
     assert list(rungs) == ["generator", "generator filled ≤0.02", "enhanced ≤0.02"]
     assert {r.shares for r in rungs.values()} == {"generator"}
-    scene = load_scene(data / "tabletop_000001")
-    idx = pick_inputs(scene, 3)
-    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
-    g = rungs["generator"].reconstruct(inp)
-    cam = scene.cameras[scene.target_indices[0]]
+    inp, g, cam = _generator_on_tabletop(data, rungs["generator"])
     wide = oversized_splats(g, cam, 0.02)
     assert 0 < int(wide.sum()) < len(g)  # a small radius: some are left out, not all
     kept = render(g[~wide], cam)

@@ -330,6 +330,33 @@ def fill_rungs(ctx: LadderContext) -> list[Rung]:
     return rungs + [Rung("true depth filled", _true_depth, true_filled, "true depth", depth=True)]
 
 
+def _variant_rungs(
+    ctx: LadderContext, rung: str, values: list[float], label: str, option: str,
+    enhanced_filled: bool,
+) -> list[Rung]:  # fmt: skip
+    """Rows that draw the generator row's reconstruction with one of :func:`splat_view`'s
+    options (``option``) at each of ``values``: ``generator filled <label><v>`` and, per
+    improvement model, ``enhanced <label><v>`` (and ``enhanced filled`` with
+    ``enhanced_filled``), so they pair with the plain rows target by target."""
+    recon, dtype = _generator_gaussians(ctx), _dtype(ctx)
+    improvers = ctx.improvers(rung)  # {} without an improvement model
+
+    def make(name: str, v: float, improver=None, fill: bool = True) -> Rung:
+        def view(g, cam: Camera, inp: SceneInputs) -> View:
+            return splat_view(g, cam, inp, improver, dtype, fill_holes=fill, **{option: v})
+
+        return Rung(f"{name} {label}{v:g}", recon, view, "generator", depth=True)
+
+    rungs = []
+    for v in values:
+        rungs.append(make("generator filled", v))
+        for suffix, imp in improvers.items():
+            rungs.append(make(f"enhanced{suffix}", v, imp, fill=False))
+            if enhanced_filled:
+                rungs.append(make(f"enhanced filled{suffix}", v, imp))
+    return rungs
+
+
 @register("splat")
 def splat_rungs(ctx: LadderContext) -> list[Rung]:
     """The generator's Gaussians drawn smaller (``--splat-scales``: their scales multiplied,
@@ -340,22 +367,7 @@ def splat_rungs(ctx: LadderContext) -> list[Rung]:
     factors = [float(s) for s in ctx.options.get("splat_scales") or []]
     if not factors:
         raise SkipRung("no splat scale asked for; pass --splat-scales 0.5")
-    recon, dtype = _generator_gaussians(ctx), _dtype(ctx)
-    improvers = ctx.improvers("splat")  # {} without an improvement model
-
-    def make(name: str, s: float, improver=None, fill: bool = True) -> Rung:
-        def view(g, cam: Camera, inp: SceneInputs) -> View:
-            return splat_view(g, cam, inp, improver, dtype, fill_holes=fill, splat_scale=s)
-
-        return Rung(f"{name} ×{s:g}", recon, view, "generator", depth=True)
-
-    rungs = []
-    for s in factors:
-        rungs.append(make("generator filled", s))
-        for suffix, imp in improvers.items():
-            rungs.append(make(f"enhanced{suffix}", s, imp, fill=False))
-            rungs.append(make(f"enhanced filled{suffix}", s, imp))
-    return rungs
+    return _variant_rungs(ctx, "splat", factors, "×", "splat_scale", enhanced_filled=True)
 
 
 @register("cull")
@@ -368,21 +380,7 @@ def cull_rungs(ctx: LadderContext) -> list[Rung]:
     radii = [float(r) for r in ctx.options.get("max_splat_radius") or []]
     if not radii:
         raise SkipRung("no splat radius asked for; pass --max-splat-radius 0.1")
-    recon, dtype = _generator_gaussians(ctx), _dtype(ctx)
-    improvers = ctx.improvers("cull")  # {} without an improvement model
-
-    def make(name: str, r: float, improver=None, fill: bool = True) -> Rung:
-        def view(g, cam: Camera, inp: SceneInputs) -> View:
-            return splat_view(g, cam, inp, improver, dtype, fill_holes=fill, max_splat_radius=r)
-
-        return Rung(f"{name} ≤{r:g}", recon, view, "generator", depth=True)
-
-    rungs = []
-    for r in radii:
-        rungs.append(make("generator filled", r))
-        for suffix, imp in improvers.items():
-            rungs.append(make(f"enhanced{suffix}", r, imp, fill=False))
-    return rungs
+    return _variant_rungs(ctx, "cull", radii, "≤", "max_splat_radius", enhanced_filled=False)
 
 
 def warp_paste_view(g, cam: Camera, inp: SceneInputs) -> View:
