@@ -690,8 +690,10 @@ class ProSplat:
         test scenes). ``splat_scale``: the Gaussians' scales multiplied by it for this render
         (:data:`prosplat.enhance.SPLAT_SCALE` suits the generator's unrefined Gaussians in a
         filled raw view; refined ones, and views the shipped stage 2 enhances, are best left at
-        1). ``max_splat_radius``: splats this camera would draw wider than that fraction of its
-        shorter side are left out (:func:`prosplat.enhance.oversized_splats`; None draws all).
+        1). ``max_splat_radius``: a filled or enhanced view leaves out the splats this camera
+        would draw wider than that fraction of its shorter side
+        (:func:`prosplat.enhance.oversized_splats`; None draws all; a raw view on black always
+        draws all).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with
