@@ -5,8 +5,8 @@
 # scores what the raw view and stage 2 see, and no longer rewards spilling Gaussians over
 # what no input saw (BENCHMARKS "Holes").
 #   v16a (default): --fill-holes, seed 12;
-#   the control is v15a (v14's recipe without the fill, seed 11; BENCHMARKS "Generator v16
-#   candidates").
+#   the control is v15a (v14's recipe without the fill, seed 11); both are scored in
+#   BENCHMARKS "Generator v16a" and "Generator v15a".
 #   scripts/train_generator_v16.sh [STEPS]      (OUT, SEED, EXTRA_ARGS override)
 # ~1.2 s a step on one thread. Resumable: the same command continues from OUT's last checkpoint.
 set -euo pipefail
