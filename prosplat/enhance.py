@@ -60,6 +60,13 @@ SPLAT_SCALE = 0.5
 MAX_SPLAT_RADIUS = 0.1
 
 
+def _check_max_radius(value, name: str) -> None:
+    if isinstance(value, bool) or not (
+        isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+    ):
+        raise ValueError(f"{name} must be a finite number > 0 (or None), got {value!r}")
+
+
 def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) -> Tensor:
     """[N] bool: the Gaussians that ``camera`` draws with a standard deviation wider than
     ``max_radius`` times the view's shorter side, along the splat's widest direction (the
@@ -75,8 +82,7 @@ def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) ->
     from prosplat.render.fused import project_gaussians_fused
     from prosplat.render.projection import project_gaussians
 
-    if not (math.isfinite(max_radius) and max_radius > 0):
-        raise ValueError(f"max_radius must be a finite number > 0, got {max_radius!r}")
+    _check_max_radius(max_radius, "max_radius")
     g = gaussians.detach()
     # the fused kernel is the same float64 arithmetic at ~2.4x the speed (CPU only)
     p = (project_gaussians_fused if g.device.type == "cpu" else project_gaussians)(g, camera)
@@ -303,6 +309,8 @@ def render_view(
     default); None draws them all. A raw view on black always draws them all: there the hole
     left would cost more than the blur (textureless scenes lose 1.3 dB)."""
     options = options or EnhanceOptions()
+    if max_splat_radius is not None:  # checked even where a raw view on black ignores it
+        _check_max_radius(max_splat_radius, "max_splat_radius")
     as_given = gaussians
     painted = fill_holes or improver is not None  # the holes the cap leaves are painted
     if max_splat_radius is not None and painted:  # judged at their own size, before scaling

@@ -237,6 +237,9 @@ def test_render_view_leaves_out_oversized_splats(monkeypatch):
     assert torch.equal(every.raw, render(both, cam).rgb)
     # a raw view on black draws every splat whatever the cap: its holes would stay black
     assert torch.equal(render_view(both, cam, max_splat_radius=0.25).image, render(both, cam).rgb)
+    for bad in (0.0, -0.1, float("nan"), "0.1"):  # refused there too, not silently ignored
+        with pytest.raises(ValueError, match="max_splat_radius"):
+            render_view(both, cam, max_splat_radius=bad)
     # so does a view the guard refuses to enhance, shown on black
     monkeypatch.setattr(enhance_module, "enhance", lambda improver, raw, *a, **k: 1.0 - raw)
     scribbler = SimpleNamespace(config=SimpleNamespace(warp_input=False))
