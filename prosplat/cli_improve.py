@@ -48,10 +48,17 @@ def cmd_curate(args: argparse.Namespace) -> int:
     if not 0 < args.splat_scale < float("inf"):
         print("prosplat train curate: --splat-scale must be finite and > 0", file=sys.stderr)
         return 2
+    if not 0 <= args.max_splat_radius < float("inf"):
+        print(
+            "prosplat train curate: --max-splat-radius must be finite and >= 0 (0: off)",
+            file=sys.stderr,
+        )
+        return 2
     path = curate(
         model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd,
         refine_steps=args.refine_steps, height=args.size, generator_height=args.generator_size,
-        splat_scale=args.splat_scale, first=args.first, count=args.count,
+        splat_scale=args.splat_scale, max_splat_radius=args.max_splat_radius or None,
+        first=args.first, count=args.count,
     )  # fmt: skip
     print(f"curated set: {path.resolve()}")
     return 0
@@ -138,6 +145,7 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
 
 
 def add_train_parsers(train_sub) -> None:
+    from prosplat.enhance import MAX_SPLAT_RADIUS
     from prosplat.train.improve import ImproveTrainConfig, JointTrainConfig
 
     cu = train_sub.add_parser(
@@ -174,6 +182,14 @@ def add_train_parsers(train_sub) -> None:
         default=1.0,
         help="render the Gaussians with their scales multiplied by this (default 1; "
         "prosplat.enhance.SPLAT_SCALE for a model that enhances smaller splats)",
+    )
+    cu.add_argument(
+        "--max-splat-radius",
+        type=float,
+        default=MAX_SPLAT_RADIUS,
+        help="each target view leaves out the splats it would draw wider than this fraction of "
+        f"its shorter side, as enhanced views do (default {MAX_SPLAT_RADIUS:g}, "
+        "prosplat.enhance.MAX_SPLAT_RADIUS; 0: draw every splat)",
     )
     cu.add_argument(
         "--size",

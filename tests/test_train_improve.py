@@ -85,8 +85,8 @@ def test_curation_renders_smaller_splats_as_render_view_draws_them(setup) -> Non
     root, gen_path, _ = setup
     model = ProSplat.from_pretrained(gen_path, improve=False)
     scene = load_scene(root / "scenes" / "scene_0", load_depth=False)
-    small = curate_scene(model, scene, [2], splat_scale=0.5)
-    plain = curate_scene(model, scene, [2])
+    small = curate_scene(model, scene, [2], splat_scale=0.5, max_splat_radius=None)
+    plain = curate_scene(model, scene, [2], max_splat_radius=None)
     idx = pick_inputs(scene, 2)
     cams = [scene.cameras[i] for i in idx]
     full, _ = model.generate(scene.images[idx], cams, float(scene.near[idx].min()),
@@ -96,6 +96,49 @@ def test_curation_renders_smaller_splats_as_render_view_draws_them(setup) -> Non
     assert torch.allclose(small["render"][0].float(), view.raw, atol=1e-3)
     assert torch.allclose(small["alpha"][0].float(), view.alpha, atol=1e-3)
     assert float(small["alpha"][0].float().mean()) < float(plain["alpha"][0].float().mean())
+
+
+def test_curation_leaves_out_oversized_splats_as_an_enhanced_view_does(setup) -> None:
+    """``max_splat_radius``: each stored render, alpha and warp come from the Gaussians that
+    view keeps, what ``render_view`` hands stage 2 at run time (a radius small enough that
+    the tiny generator's splats are cut on every view)."""
+    from prosplat.data import load_scene
+    from prosplat.enhance import oversized_splats, render_view
+    from prosplat.evaluate import pick_inputs
+    from prosplat.improve.warp import reference_warp
+    from prosplat.render import render
+    from prosplat.train.curate import curate_scene
+
+    root, gen_path, _ = setup
+    model = ProSplat.from_pretrained(gen_path, improve=False)
+    scene = load_scene(root / "scenes" / "scene_0", load_depth=False)
+    radius = 0.04
+    capped = curate_scene(model, scene, [2], max_splat_radius=radius)
+    every = curate_scene(model, scene, [2], max_splat_radius=None)
+    idx = pick_inputs(scene, 2)
+    cams = [scene.cameras[i] for i in idx]
+    full, _ = model.generate(scene.images[idx], cams, float(scene.near[idx].min()),
+                             float(scene.far[idx].max()))  # fmt: skip
+    g = full.gaussians(0)
+    for k, t in enumerate(scene.target_indices):
+        cam = scene.cameras[t]
+        cut = oversized_splats(g, cam, radius)
+        assert 0 < int(cut.sum()) < len(g)
+        view = render_view(g, cam, fill_holes=True, max_splat_radius=radius)
+        assert torch.allclose(capped["render"][k].float(), view.raw, atol=1e-3)
+        assert torch.allclose(capped["alpha"][k].float(), view.alpha, atol=1e-3)
+        # the warp: the same Gaussians' depth at the reference camera, not every splat's
+        kept = g[~cut]
+        ref = capped["ref_paper"][k]
+        j = next(i for i in range(len(cams)) if torch.equal(scene.images[idx[i]].half(), ref))
+        with torch.no_grad():
+            ref_depth = render(kept, cams[j]).depth
+        warp = reference_warp(
+            kept, cam, view.depth, view.alpha, scene.images[idx[j]], cams[j], ref_depth
+        )
+        assert torch.allclose(capped["warp_paper"][k].float(), warp, atol=2e-3)
+    # the cut splats held coverage that every-splat curation kept
+    assert torch.stack(capped["alpha"]).float().mean() < torch.stack(every["alpha"]).float().mean()
 
 
 def test_train_improve_logs_resumes_and_saves(setup, tmp_path) -> None:

@@ -211,6 +211,41 @@ def test_stage2_v17_curates_half_size_splats_of_its_subset_then_runs_v16s_fill_r
     ]  # fmt: skip
 
 
+def test_stage2_v22_curates_v16as_capped_renders_of_unseen_scenes_then_fine_tunes_v19(
+    root: Path,
+) -> None:
+    """v22: raw64, raw128 and ref64 of the subset curated with the generator asked for (the
+    cap at its default), then v19's recipe at lr 5e-5 from v19 on the three sets; a missing
+    generator stops the run before any work."""
+    (root / "runs" / "s2v22").mkdir(parents=True)
+    (root / "runs" / "s2v22" / "v19.safetensors").write_bytes(b"")  # shipped_before keeps it
+    (root / "runs" / "g.safetensors").write_bytes(b"")
+    env = {"SCENES": "10000-10001 20000-20000", "GEN": "runs/g.safetensors"}
+    r = _run_script(root, "train_stage2_v22.sh", env, "9")
+    assert r.returncode == 0, r.stderr
+    lines = [line.split() for line in r.stdout.splitlines()]
+    curates = {a[a.index("--out") + 1]: a for a in lines if a[:2] == ["train", "curate"]}
+    sets = [f"runs/s2v22/sets/{name}.safetensors" for name in ("raw64", "raw128", "ref64")]
+    assert sorted(curates) == sorted(sets)
+    for a in curates.values():
+        assert a[a.index("--data") + 1] == "data/s2v22_scenes"
+        assert a[a.index("--generator") + 1] == "runs/g.safetensors"
+        assert a[a.index("--generator-size") + 1] == "128"
+        assert "--max-splat-radius" not in a  # the default, as enhanced views are rendered
+    assert curates[sets[2]][curates[sets[2]].index("--refine-steps") + 1] == "100"
+    train = next(a for a in lines if a[:2] == ["train", "improve"])
+    assert train[train.index("--init") + 1] == "runs/s2v22/v19.safetensors"
+    assert train[train.index("--out") + 1] == "runs/s2v22/run"
+    assert train[train.index("--data") + 1].split(",") == sets
+    assert train[train.index("--lr") + 1] == "5e-5" and train[train.index("--steps") + 1] == "9"
+    assert {"--fill", "--warp", "--alpha", "--subpixel-shift"} <= set(train)
+    assert sorted(_links(root / "data" / "s2v22_scenes")) == [
+        "near_far_020000", "open_010000", "room_010001",
+    ]  # fmt: skip
+    missing = _run_script(root, "train_stage2_v22.sh", {"GEN": "runs/none.safetensors"})
+    assert missing.returncode == 1 and "no generator runs/none.safetensors" in missing.stderr
+
+
 def _run_gpu_script(cmd: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
     """A GPU script run here with its python faked (the FAKE_*PY texts below)."""
     return subprocess.run(

@@ -20,6 +20,7 @@ from torch import Tensor
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import load_source, scene_sources, source_name
 from prosplat.data.scene import resize_views
+from prosplat.enhance import MAX_SPLAT_RADIUS, oversized_splats
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
@@ -45,6 +46,7 @@ def curate_scene(
     seed: int = 0,
     generator_height: int | None = None,
     splat_scale: float = 1.0,
+    max_splat_radius: float | None = MAX_SPLAT_RADIUS,
 ) -> dict[str, list[Tensor]]:
     """Samples of one scene for each input-view count in ``views`` (counts above the scene's
     input views are skipped). ``refine_steps > 0`` renders the refined scene instead (the
@@ -53,7 +55,11 @@ def curate_scene(
     ``generator_height``: the generator runs at most this high, as the pipeline runs it
     (:meth:`ProSplat.generator_views`; None: the weights' trained size, 0: the views' size).
     ``splat_scale``: the Gaussians render with their scales multiplied by it, as
-    ``render_view(..., splat_scale=)`` draws them for a model trained on such renders."""
+    ``render_view(..., splat_scale=)`` draws them for a model trained on such renders.
+    ``max_splat_radius``: each target view leaves out the Gaussians it would draw wider than
+    this fraction of its shorter side, as an enhanced view does at inference
+    (:func:`prosplat.enhance.oversized_splats`, judged before ``splat_scale``; the warp's
+    reference depth comes from the same Gaussians); None draws every splat."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -80,12 +86,19 @@ def curate_scene(
             gaussians = full.gaussians(0)
             same_size = full.depths.shape[-2:] == images.shape[-2:]
             input_depths = full.depths[0] if same_size else None  # MORI needs input-size maps
-        gaussians = gaussians.with_scale_factor(splat_scale)
-        ref_depths: dict[int, Tensor] = {}  # input j -> the Gaussians' depth there [H,W]
+        drawn_all = gaussians.with_scale_factor(splat_scale)
+        ref_depths: dict[int, Tensor] = {}  # input j -> every Gaussian's depth there [H,W]
         for t in scene.target_indices:
             cam = scene.cameras[t]
+            capped = None  # [N] bool: the splats this view leaves out, when it leaves any
+            if max_splat_radius is not None:
+                capped = oversized_splats(gaussians, cam, max_splat_radius)
+                capped = capped if bool(capped.any()) else None
+            drawn = (
+                drawn_all if capped is None else gaussians[~capped].with_scale_factor(splat_scale)
+            )
             with torch.no_grad():
-                out = render(gaussians, cam, background=torch.zeros(3))
+                out = render(drawn, cam, background=torch.zeros(3))
             put("render", out.rgb.half())
             put("alpha", out.alpha.half())
             put("target", scene.images[t].half())
@@ -97,11 +110,16 @@ def curate_scene(
                 )
                 put(f"ref_{method}", scene.images[idx[j]].half())
                 put(f"F_{method}", fundamental_matrix(cam, cams[j]).float())
-                if j not in ref_depths:  # targets (and both methods) share a few inputs
+                if capped is not None:  # this view's own Gaussians, as inference warps
                     with torch.no_grad():
-                        ref_depths[j] = render(gaussians, cams[j]).depth
+                        ref_depth = render(drawn, cams[j]).depth
+                else:  # targets (and both methods) share a few inputs
+                    if j not in ref_depths:
+                        with torch.no_grad():
+                            ref_depths[j] = render(drawn_all, cams[j]).depth
+                    ref_depth = ref_depths[j]
                 warp = reference_warp(
-                    gaussians, cam, out.depth, out.alpha, images[j], cams[j], ref_depths[j]
+                    drawn, cam, out.depth, out.alpha, images[j], cams[j], ref_depth
                 )
                 put(f"warp_{method}", warp.half())  # [4,H,W] for warp_input models
     return cols
@@ -119,14 +137,15 @@ def curate(
     height: int | None = None,
     generator_height: int | None = None,
     splat_scale: float = 1.0,
+    max_splat_radius: float | None = MAX_SPLAT_RADIUS,
     first: int = 0,
     count: int | None = None,
 ) -> Path:
     """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
     ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`); ``height``:
     views resized to this height first (antialiased, as the ladder evaluates), so one set of
-    128-px scenes serves a 64-px model; ``generator_height`` and ``splat_scale``: see
-    :func:`curate_scene`.
+    128-px scenes serves a 64-px model; ``generator_height``, ``splat_scale`` and
+    ``max_splat_radius``: see :func:`curate_scene`.
 
     ``root``: a dataset folder, a scene pack (``.npz``, ``prosplat scenes pack``; depth is not
     needed) or several of them, comma-separated. ``first`` / ``count`` curate a slice of the
@@ -165,6 +184,7 @@ def curate(
         part = curate_scene(
             model, scene, views, refine_steps=refine_steps, seed=s,
             generator_height=generator_height, splat_scale=splat_scale,
+            max_splat_radius=max_splat_radius,
         )  # fmt: skip
         for k, v in part.items():
             cols.setdefault(k, []).extend(v)
@@ -182,6 +202,7 @@ def curate(
         "height": str(height or ""),
         "generator_height": str(generator_height or ""),
         "splat_scale": f"{splat_scale:g}",
+        "max_splat_radius": "" if max_splat_radius is None else f"{max_splat_radius:g}",
         # the generator's depth after the local sweep (prosplat.depth_sweep) or as predicted
         "depth_sweep": "on" if getattr(model, "depth_sweep", None) is not None else "off",
         "command": command,
