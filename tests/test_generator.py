@@ -368,6 +368,22 @@ def test_warp_grid_matches_camera_projection():
         assert torch.allclose(grid[0, 0, m].double(), expect, atol=1e-4)
 
 
+def test_warp_grid_sends_points_behind_the_neighbour_outside():
+    """A neighbour facing the reference camera: a candidate between the two lands where
+    Camera.project puts it, one beyond the neighbour lies behind it and gets (-2, -2)."""
+    w, h = 12, 10
+    ref = Camera.from_intrinsics(10.0, 10.0, 6.0, 5.0, w, h)  # at the origin, looking +z
+    nb = Camera.look_at((0.2, 0.1, 3.0), (0.0, 0.0, 0.0), (0, -1, 0), 10.0, w, h)
+    K = torch.stack([ref.K, nb.K]).float()[None]
+    w2c = torch.stack([ref.world_to_cam, nb.world_to_cam]).float()[None]
+    grid = warp_grid(K, w2c, torch.tensor([[1, 0]]), torch.tensor([[1.5, 6.0]]), h, w)
+    assert (grid[0, 0, 1] == -2).all()  # 6 units out: behind the neighbour at z = 3
+    pts = ref.unproject(ref.pixel_centers(torch.float64), torch.full((h, w), 1.5).double())
+    uv, _ = nb.project(pts)
+    expect = torch.stack([uv[..., 0] / w * 2 - 1, uv[..., 1] / h * 2 - 1], -1).clamp(-2, 2)
+    assert torch.allclose(grid[0, 0, 0].double(), expect, atol=1e-4)
+
+
 def test_per_pixel_depths_warp_exactly_as_the_planes_they_pick():
     """warp_grid with [B,V,D,h,w] depths (each pixel its own candidates, as a band search
     around a first estimate needs) lands where the same depth's plane sends that pixel."""
@@ -431,15 +447,22 @@ def test_zero_baseline_cost_volume_is_flat_and_finite():
     assert torch.allclose(cost, same_pixel.expand_as(cost), atol=1e-4)
 
 
-def test_cost_volume_matches_a_candidate_by_candidate_reference():
-    """The vectorised correlation (all candidates warped at once, multiplied and summed over
-    channels) against one grid_sample and one dot product per view, neighbour and candidate:
-    the same volume and the same feature gradients."""
+@pytest.mark.parametrize("all_pairs", [True, False])
+def test_cost_volume_matches_a_candidate_by_candidate_reference(all_pairs, monkeypatch):
+    """The vectorised correlation, both ways (all candidates warped at once, multiplied and
+    summed over channels; or every pixel pair correlated first, then sampled), against one
+    grid_sample and one dot product per view, neighbour and candidate: the same volume and
+    the same feature gradients. The third camera faces the others, so some of its
+    candidates lie behind them and some points fall outside."""
     import torch.nn.functional as F
 
+    from prosplat.generator import cost_volume
+
+    monkeypatch.setattr(cost_volume, "ALL_PAIRS_MAX_PIXELS", 10**6 if all_pairs else 0)
     torch.manual_seed(5)
     cams = [Camera.look_at((0.3 * i, 0.1 * i, 0.0), (0.0, 0.0, 4.0), (0, -1, 0), 12.0, 10, 8)
-            for i in range(3)]  # fmt: skip
+            for i in range(2)]  # fmt: skip
+    cams.append(Camera.look_at((0.2, 0.0, 6.0), (0.0, 0.0, 0.0), (0, -1, 0), 12.0, 10, 8))
     K = torch.stack([c.K for c in cams]).float()[None]
     w2c = torch.stack([c.world_to_cam for c in cams]).float()[None]
     cands = inverse_depth_candidates(torch.tensor([1.0]), torch.tensor([20.0]), 5)

@@ -81,6 +81,7 @@ def _candidate_depths(depths: Tensor, v: int, hw: int) -> Tensor:
     )
 
 
+@torch.no_grad()
 def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: int) -> Tensor:
     """Sampling grid of neighbour ``nbr`` for every reference pixel and candidate.
 
@@ -94,7 +95,10 @@ def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: in
     Returns:
         [B,V,D,h,w,2] normalised coordinates for grid_sample(align_corners=False); points
         behind (or on) the neighbour's image plane are sent to (-2, -2), outside the image,
-        so they sample zeros.
+        so they sample zeros. No gradient: cameras and candidates are inputs, never learned
+        (a band's depths come in detached), which lets the grid be built in place, a third
+        of the time of a cost volume's sweep at 64x64 (BENCHMARKS "The cost volume:
+        all-pairs correlation").
     """
     A, b = _relative_projection(K, w2c, nbr)  # [B,V,3,3], [B,V,3]
     z = _candidate_depths(depths, K.shape[1], h * w)  # [B,V',D,hw]
@@ -105,15 +109,18 @@ def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: in
     )
     pix = torch.stack([xs, ys, torch.ones_like(xs)], dim=0).view(3, h * w)  # [3,hw]
     a = A @ pix  # [B,V,3,hw]
-    p = z[:, :, :, None] * a[:, :, None] + b[:, :, None, :, None]  # [B,V,D,3,hw]
-    depth_j = p[:, :, :, 2]  # [B,V,D,hw]
+
+    def coordinate(i: int) -> Tensor:  # row i of z·A·p + b: [B,V,D,hw]
+        return torch.addcmul(b[:, :, i, None, None], z, a[:, :, None, i])
+
+    depth_j = coordinate(2)  # [B,V,D,hw]
     # In front of camera j by a relative margin; the clamp keeps far-off points finite.
-    front = depth_j > 1e-6 * z
-    zs = torch.where(front, depth_j, torch.ones_like(depth_j))
-    u = (p[:, :, :, 0] / zs / w * 2 - 1).clamp(-2.0, 2.0)  # [B,V,D,hw]
-    v = (p[:, :, :, 1] / zs / h * 2 - 1).clamp(-2.0, 2.0)
-    grid = torch.stack([u, v], dim=-1)  # [B,V,D,hw,2]
-    grid = torch.where(front[..., None], grid, torch.full_like(grid, -2.0))
+    behind = depth_j <= 1e-6 * z  # [B,V,D,hw]
+    inv = depth_j.reciprocal_().masked_fill_(behind, 0.0)
+    grid = torch.stack([coordinate(0), coordinate(1)], dim=-1).mul_(inv[..., None])
+    grid[..., 0].mul_(2 / w)
+    grid[..., 1].mul_(2 / h)
+    grid.sub_(1).clamp_(-2.0, 2.0).masked_fill_(behind[..., None], -2.0)  # [B,V,D,hw,2]
     return grid.view(*grid.shape[:3], h, w, 2)
 
 
@@ -127,6 +134,56 @@ def correlate(feats: Tensor, warped: Tensor) -> Tensor:
     step's generator time, and this is about 2x faster (BENCHMARKS "The cost volume's
     correlation")."""
     return (feats.unsqueeze(3) * warped).sum(2)
+
+
+#: Feature maps of at most this many pixels are correlated all pairs first
+#: (:func:`sampled_correlation`); larger ones are warped, then correlated. The crossover on
+#: one 2-core CPU thread, 32 candidates: the all-pairs way was 1.9x faster for 48 channels at
+#: 32x32 and 3x for 16 at 32x32, 2x slower for 16 at 64x64 (BENCHMARKS "The cost volume:
+#: all-pairs correlation").
+ALL_PAIRS_MAX_PIXELS = 2048
+
+
+def warped_correlation(feats: Tensor, src: Tensor, grid: Tensor) -> Tensor:
+    """``<F_i(p), F_j(q)>`` for each reference pixel p and its candidates' points q: the
+    neighbour's features ``src [B,V,C,h,w]`` bilinearly sampled at ``grid [B,V,D,h,w,2]``
+    (zeros outside), then dotted with ``feats [B,V,C,h,w]`` -> [B,V,D,h,w]. Reads C channels
+    at every one of the D·h·w points."""
+    b, v, c, h, w = feats.shape
+    d = grid.shape[2]
+    warped = F.grid_sample(
+        src.reshape(b * v, c, h, w),
+        grid.reshape(b * v, d * h, w, 2),
+        mode="bilinear",
+        padding_mode="zeros",
+        align_corners=False,
+    ).view(b, v, c, d, h, w)  # [B,V,C,D,h,w]
+    return correlate(feats, warped)
+
+
+def sampled_correlation(feats: Tensor, src: Tensor, grid: Tensor) -> Tensor:
+    """:func:`warped_correlation` the other way round, the same numbers to float rounding:
+    first every reference pixel's dot product with every neighbour pixel (one batched
+    matmul, [BV, hw, hw]), then each reference pixel's own correlation map sampled at its D
+    points. Bilinear sampling is linear, so sampling the dot products equals dotting the
+    sampled features, and a point outside is zero both ways. It trades the C-channel gather
+    at D·h·w points for hw² multiply-adds in a matmul, which wins while hw is small
+    (:data:`ALL_PAIRS_MAX_PIXELS`); memory grows as hw² per view."""
+    b, v, c, h, w = feats.shape
+    d = grid.shape[2]
+    hw = h * w
+    corr = torch.bmm(
+        feats.reshape(b * v, c, hw).transpose(1, 2), src.reshape(b * v, c, hw)
+    )  # [BV, hw (reference), hw (neighbour)]
+    points = grid.permute(0, 1, 3, 4, 2, 5).reshape(b * v * hw, d, 1, 2)  # [BV·hw,D,1,2]
+    sampled = F.grid_sample(
+        corr.view(b * v * hw, 1, h, w),
+        points,
+        mode="bilinear",
+        padding_mode="zeros",
+        align_corners=False,
+    )  # [BV·hw,1,D,1]
+    return sampled.view(b, v, h, w, d).permute(0, 1, 4, 2, 3)  # [B,V,D,h,w]
 
 
 def plane_sweep_cost_volume(
@@ -143,23 +200,18 @@ def plane_sweep_cost_volume(
     Returns:
         [B,V,D,h,w] ``<F_i, F_j->i(d)> / sqrt(C)`` averaged over the k neighbours. With zero
         baseline every candidate warps to the same place, so the volume is flat along D
-        (uninformative but finite); out-of-view samples correlate with zeros.
+        (uninformative but finite); out-of-view samples correlate with zeros. Small feature
+        maps are correlated all pairs first (:func:`sampled_correlation`), larger ones warped
+        first (:func:`warped_correlation`): the same volume, whichever is faster.
     """
     b, v, c, h, w = feats.shape
     d = depths.shape[-3 if depths.ndim == 5 else 1]
     bidx = torch.arange(b, device=feats.device)[:, None]  # [B,1]
     cost = feats.new_zeros(b, v, d, h, w)
     k = neighbours.shape[-1]
+    correlation = sampled_correlation if h * w <= ALL_PAIRS_MAX_PIXELS else warped_correlation
     for n in range(k):  # one neighbour at a time bounds memory to one warped volume
         nbr = neighbours[..., n]  # [B,V]
         grid = warp_grid(K, w2c, nbr, depths, h, w).to(feats.dtype)  # [B,V,D,h,w,2]
-        src = feats[bidx, nbr].reshape(b * v, c, h, w)  # [BV,C,h,w]
-        warped = F.grid_sample(
-            src,
-            grid.reshape(b * v, d * h, w, 2),
-            mode="bilinear",
-            padding_mode="zeros",
-            align_corners=False,
-        ).view(b, v, c, d, h, w)  # [B,V,C,D,h,w]
-        cost = cost + correlate(feats, warped)
+        cost = cost + correlation(feats, feats[bidx, nbr], grid)
     return cost / (k * math.sqrt(c))  # [B,V,D,h,w]
