@@ -188,6 +188,13 @@ def test_box_mean_is_the_pooling_it_replaces():
         x = torch.rand(2, 3, 9, 11, generator=g)
         ref = F.avg_pool2d(x, window, stride=1, padding=window // 2, count_include_pad=False)
         assert torch.allclose(box_mean(x, window), ref, atol=2e-6), window
+    # sides where every window is cut (7 < 2·3 + 2), where just one is not (8), and a
+    # [N,C,D,H,W] stack of planes as the ZNCC sweep filters it
+    for shape in ((1, 1, 7, 7), (1, 2, 8, 7), (2, 2, 3, 8, 9)):
+        x = torch.rand(shape, generator=g)
+        flat = x.reshape(-1, *shape[-2:])
+        ref = F.avg_pool2d(flat, 7, stride=1, padding=3, count_include_pad=False)
+        assert torch.allclose(box_mean(x, 7), ref.view(shape), atol=2e-6), shape
     with pytest.raises(ValueError, match="odd"):
         box_mean(x, 4)
     x = torch.rand(3, 5, 16, 16, generator=g).transpose(0, 1)

@@ -478,6 +478,8 @@ def test_cost_volume_matches_a_candidate_by_candidate_reference(all_pairs, monke
                 warped = F.grid_sample(feats[:, j], grid[:, i, d], align_corners=False)
                 ref[0, i, d] += (feats[0, i] * warped[0]).sum(0) / (2 * math.sqrt(6))
     assert torch.allclose(cost, ref, atol=1e-5)
+    with torch.no_grad():  # inference correlates one channel at a time
+        assert torch.allclose(plane_sweep_cost_volume(feats, K, w2c, cands, nbrs), ref, atol=1e-5)
     g = torch.randn_like(cost)
     (ours,) = torch.autograd.grad(cost, feats, g)
     (theirs,) = torch.autograd.grad(ref, feats, g)

@@ -116,11 +116,16 @@ def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: in
     depth_j = coordinate(2)  # [B,V,D,hw]
     # In front of camera j by a relative margin; the clamp keeps far-off points finite.
     behind = depth_j <= 1e-6 * z  # [B,V,D,hw]
-    inv = depth_j.reciprocal_().masked_fill_(behind, 0.0)
+    any_behind = bool(behind.any())  # rare: most neighbours see the whole frustum in front
+    inv = depth_j.reciprocal_()
+    if any_behind:
+        inv.masked_fill_(behind, 0.0)
     grid = torch.stack([coordinate(0), coordinate(1)], dim=-1).mul_(inv[..., None])
     grid[..., 0].mul_(2 / w)
     grid[..., 1].mul_(2 / h)
-    grid.sub_(1).clamp_(-2.0, 2.0).masked_fill_(behind[..., None], -2.0)  # [B,V,D,hw,2]
+    grid.sub_(1).clamp_(-2.0, 2.0)  # [B,V,D,hw,2]
+    if any_behind:
+        grid.masked_fill_(behind[..., None], -2.0)
     return grid.view(*grid.shape[:3], h, w, 2)
 
 
@@ -133,7 +138,14 @@ def correlate(feats: Tensor, warped: Tensor) -> Tensor:
     pixel-major layout, forward and backward; that copy was a third of a 128-px training
     step's generator time, and this is about 2x faster (BENCHMARKS "The cost volume's
     correlation")."""
-    return (feats.unsqueeze(3) * warped).sum(2)
+    if torch.is_grad_enabled() and (feats.requires_grad or warped.requires_grad):
+        return (feats.unsqueeze(3) * warped).sum(2)
+    # without gradients, one channel at a time into the [B,V,D,h,w] result: the C-fold
+    # product is never stored, 1.6x the speed for 16 channels at 64x64
+    out = torch.zeros_like(warped[:, :, 0])
+    for c in range(feats.shape[2]):
+        out.addcmul_(warped[:, :, c], feats[:, :, c, None])
+    return out
 
 
 #: Feature maps of at most this many pixels are correlated all pairs first
