@@ -96,9 +96,8 @@ def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: in
         [B,V,D,h,w,2] normalised coordinates for grid_sample(align_corners=False); points
         behind (or on) the neighbour's image plane are sent to (-2, -2), outside the image,
         so they sample zeros. No gradient: cameras and candidates are inputs, never learned
-        (a band's depths come in detached), which lets the grid be built in place, a third
-        of the time of a cost volume's sweep at 64x64 (BENCHMARKS "The cost volume:
-        all-pairs correlation").
+        (a band's depths come in detached), which lets the grid be built in place: half
+        the time for 32 candidates at 64x64 (BENCHMARKS "Faster sweeps").
     """
     A, b = _relative_projection(K, w2c, nbr)  # [B,V,3,3], [B,V,3]
     z = _candidate_depths(depths, K.shape[1], h * w)  # [B,V',D,hw]
@@ -149,11 +148,12 @@ def correlate(feats: Tensor, warped: Tensor) -> Tensor:
 
 
 #: Feature maps of at most this many pixels are correlated all pairs first
-#: (:func:`sampled_correlation`); larger ones are warped, then correlated. The crossover on
-#: one 2-core CPU thread, 32 candidates: the all-pairs way was 1.9x faster for 48 channels at
-#: 32x32 and 3x for 16 at 32x32, 2x slower for 16 at 64x64 (BENCHMARKS "The cost volume:
-#: all-pairs correlation").
-ALL_PAIRS_MAX_PIXELS = 2048
+#: (:func:`sampled_correlation`); larger ones are warped, then correlated. Timed on one CPU
+#: thread, 4 views, 32 candidates, without gradients (`benchmarks/sweep_speed.py`): the
+#: all-pairs way took 1/10 of the time for 48 channels at 16x16, 1/1.8 for 48 at 32x32 and
+#: 1/1.1 for 16 at 32x32, but 4x the time for 16 at 64x64, as its matmul grows with the
+#: square of the pixels (BENCHMARKS "Faster sweeps").
+ALL_PAIRS_MAX_PIXELS = 1024
 
 
 def warped_correlation(feats: Tensor, src: Tensor, grid: Tensor) -> Tensor:
