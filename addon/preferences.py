@@ -148,7 +148,8 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         name="Fill Holes", default=False,
         description="Where no input saw the scene, continue the render's own colours instead "
         "of showing black (raw renders over the fill; enhanced ones blended with it where the "
-        "Gaussians do not cover the view)",
+        "Gaussians do not cover the view). Turn it on for raw renders: the shipped generator "
+        "leaves those places empty",
     )  # fmt: skip
     budget: IntProperty(
         name="Gaussian Budget", default=0, min=0,

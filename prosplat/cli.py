@@ -53,7 +53,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     total = summary_rows(result.views)[-1]
     raw = "refined" if cfg.refine_steps or cfg.refine_seconds is not None else "generator"
     print(
-        f"PSNR over {total['n']} new views: {raw} {total['psnr_raw']:.2f} dB -> enhanced "
+        f"PSNR over {total['n']} new views: {raw} (holes filled) {total['psnr_raw']:.2f} dB -> "
+        f"enhanced "
         f"{total['psnr_enhanced']:.2f} dB; LPIPS {total['lpips_raw']:.3f} -> "
         f"{total['lpips_enhanced']:.3f}; demo took {result.timings['total']:.0f} s"
     )

@@ -281,9 +281,11 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     t0 = time.perf_counter()
     for t in tqdm(scene.target_indices, desc="rendering + enhancing views", unit="view"):
         view = model.render(gaussians, cameras[t], in_images, in_cams, dtype=dtype)
-        # the generator's own view, every splat on black (stage 2's input, view.raw, leaves
-        # out the oversized ones whose place it paints: prosplat.enhance.MAX_SPLAT_RADIUS)
-        raw = model.render(gaussians, cameras[t], enhance=False).image.clamp(0, 1)
+        # the generator's own view with the holes no input saw filled from its colours, as
+        # issue 12 scores it: the shipped generator (v16a) leaves those places empty, and on
+        # black they read as a failure that the fill and stage 2 both paint over
+        raw = model.render(gaussians, cameras[t], enhance=False, fill_holes=True).image
+        raw = raw.clamp(0, 1)
         gt, enh = images[t], view.image.clamp(0, 1)
         with torch.no_grad():
             scores = {

@@ -1,6 +1,6 @@
 """The files ``prosplat demo`` leaves in ``out/demo/``: pictures, metrics and a report.
 
-- ``views/view_NNN_<kind>.png``: input reference | generator render | enhanced | Blender.
+- ``views/view_NNN_<kind>.png``: input reference | generator render (holes filled) | enhanced | Blender.
 - ``overview.png``: the same panels for up to two interpolation and two extrapolation views.
 - ``metrics.csv`` / ``metrics.json`` / ``metrics.md``: per view and per target kind.
 - ``plot.png``: PSNR per view (generator vs enhanced) and speed against error.
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
 PANELS = (
     ("reference", "input (MORI reference)"),
-    ("generator", "generator (stage 1)"),
+    ("generator", "generator (stage 1, holes filled)"),
     ("enhanced", "enhanced (stage 2)"),
     ("blender", "Blender (ground truth)"),
 )
@@ -41,7 +41,7 @@ def _pyplot():
 def _panel_titles(v: ViewResult) -> list[str]:
     return [
         f"input {v.reference} (MORI reference)",
-        f"generator {v.psnr_raw:.2f} dB",
+        f"generator, filled {v.psnr_raw:.2f} dB",
         f"enhanced {v.psnr_enhanced:.2f} dB",
         "Blender (ground truth)",
     ]
@@ -242,7 +242,7 @@ ProSplat add-on imports the PLY as a point cloud).
 
 ## Numbers
 
-Mean PSNR over all targets: generator {total["psnr_raw"]:.2f} dB → enhanced
+Mean PSNR over all targets: generator (holes filled) {total["psnr_raw"]:.2f} dB → enhanced
 {total["psnr_enhanced"]:.2f} dB ({total["psnr_enhanced"] - total["psnr_raw"]:+.2f} dB);
 LPIPS {total["lpips_raw"]:.3f} → {total["lpips_enhanced"]:.3f}.
 
@@ -274,7 +274,8 @@ medians over repeated runs.
 
 ## Every view
 
-Input reference (the input MORI chose) | generator render | enhanced | Blender ground truth.
+Input reference (the input MORI chose) | generator render, its holes filled | enhanced | Blender
+ground truth.
 
 {views}
 """
