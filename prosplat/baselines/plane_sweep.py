@@ -114,7 +114,7 @@ def _box_sum(x: Tensor, r: int, dim: int) -> Tensor:
 def box_mean(x: Tensor, window: int = WINDOW) -> Tensor:
     """Mean over the ``window`` x ``window`` neighbourhood (odd; border windows shrink, not
     zero-pad) of the last two dimensions: ``avg_pool2d(x, window, 1, window // 2,
-    count_include_pad=False)`` to float rounding (tests/test_baselines.py), at a fifth of its
+    count_include_pad=False)`` to float rounding (tests/test_baselines.py), at a quarter of its
     time (it was half of a sweep's)."""
     if window < 1 or window % 2 == 0:
         raise ValueError(f"box_mean: window must be odd and >= 1, got {window}")
