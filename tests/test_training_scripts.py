@@ -144,6 +144,28 @@ def test_generator_v8_default_scenes_are_v7s(root: Path) -> None:
     assert not (root / "data" / "gen_v6").exists()
 
 
+def test_generator_v17_goes_on_from_v16_with_its_fill_recipe(root: Path) -> None:
+    """v17 runs v8's script from the shipped v16 (runs/generator_v16.safetensors, kept when
+    present) with v16's flags (--fill-holes, the input term at 2), batch seed 13, into
+    runs/gen_v17a; by default it asks for the 527 scenes of rounds 0-6, so on the fake set it
+    stops at the first missing seed."""
+    (root / "runs").mkdir(exist_ok=True)
+    (root / "runs" / "generator_v16.safetensors").write_bytes(b"")  # shipped_before keeps it
+    env = {"SCENES": "10000-10001", "SUBSET": "data/sub17"}
+    r = _run_script(root, "train_generator_v17.sh", env, "12")
+    assert r.returncode == 0, r.stderr
+    args = r.stdout.split()
+    assert args[args.index("--init") + 1] == "runs/generator_v16.safetensors"
+    assert args[args.index("--out") + 1] == "runs/gen_v17a"
+    assert args[args.index("--seed") + 1] == "13"
+    assert args[args.index("--steps") + 1] == "12"
+    assert args[args.index("--data") + 1] == "data/sub17"
+    last = len(args) - 1 - args[::-1].index("--input-render-weight")  # the override wins
+    assert "--fill-holes" in args and args[last + 1] == "2"
+    default = _run_script(root, "train_generator_v17.sh", {}, "12")
+    assert default.returncode != 0 and "no scene with seed 10003" in default.stderr
+
+
 def test_generator_v9_starts_from_v8_with_v8s_recipe(root: Path) -> None:
     """v9 runs v8's script from the shipped v8 (runs/generator_v8.safetensors, kept when
     present) into runs/gen_v9 with batch seed 3."""
