@@ -59,6 +59,21 @@ def test_demo_scores_are_against_blender_ground_truth(first_run):
     assert pic.shape[2] > 3 * pic.shape[1]
 
 
+def test_demo_generator_panel_is_the_raw_view_with_its_holes_filled(first_run):
+    """The generator column is the written Gaussians' raw view with the holes no input saw
+    filled (``render_view(..., fill_holes=True)``), not the render on black."""
+    from prosplat.enhance import render_view
+
+    scene = load_scene(first_run.scene_folder)
+    _, cameras = downsample(scene, TINY["size"])
+    gaussians = read_ply(first_run.out / "gaussians.ply")
+    for v in first_run.views:
+        view = render_view(gaussians, cameras[v.index], fill_holes=True)
+        assert torch.allclose(v.images["generator"], view.image.clamp(0, 1), atol=2e-3)
+        if (view.alpha < 0.5).any():  # where the render on black has holes, the panel differs
+            assert not torch.allclose(v.images["generator"], view.raw.clamp(0, 1), atol=2e-3)
+
+
 def test_demo_rerun_does_not_clobber_and_overwrite_replaces(first_run, capsys):
     before = (first_run.out / "metrics.json").read_bytes()
     args = ["demo", "--out", str(first_run.out), "--size", "32", "--inputs", "2"]
