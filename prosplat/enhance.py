@@ -93,6 +93,22 @@ def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) ->
     return p.valid & (low * limit * limit < 1)
 
 
+def painted_view_gaussians(
+    gaussians: Gaussians,
+    camera: Camera,
+    max_splat_radius: float | None = MAX_SPLAT_RADIUS,
+    splat_scale: float = 1.0,
+) -> Gaussians:
+    """The Gaussians a filled or enhanced view of ``camera`` draws: those it would draw wider
+    than ``max_splat_radius`` of its shorter side left out (:func:`oversized_splats`, judged
+    at their own size; None keeps them all), then their scales multiplied by
+    ``splat_scale``. :func:`render_view` draws these, and stage-2 curation renders its
+    training views from them, so the model learns what it is given."""
+    if max_splat_radius is not None:
+        gaussians = gaussians[~oversized_splats(gaussians, camera, max_splat_radius)]
+    return gaussians.with_scale_factor(splat_scale)
+
+
 @dataclass
 class EnhancedView:
     """One rendered (and possibly enhanced) view.
@@ -313,9 +329,9 @@ def render_view(
         _check_max_radius(max_splat_radius, "max_splat_radius")
     as_given = gaussians
     painted = fill_holes or improver is not None  # the holes the cap leaves are painted
-    if max_splat_radius is not None and painted:  # judged at their own size, before scaling
-        gaussians = gaussians[~oversized_splats(gaussians, camera, max_splat_radius)]
-    gaussians = gaussians.with_scale_factor(splat_scale)
+    gaussians = painted_view_gaussians(
+        gaussians, camera, max_splat_radius if painted else None, splat_scale
+    )
     if fill_holes and background is not None:
         raise ValueError(
             "fill_holes fills the holes of a render on black; pass a background or "

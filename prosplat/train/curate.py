@@ -20,7 +20,7 @@ from torch import Tensor
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import load_source, scene_sources, source_name
 from prosplat.data.scene import resize_views
-from prosplat.enhance import MAX_SPLAT_RADIUS, oversized_splats
+from prosplat.enhance import MAX_SPLAT_RADIUS, painted_view_gaussians
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
@@ -87,16 +87,12 @@ def curate_scene(
             same_size = full.depths.shape[-2:] == images.shape[-2:]
             input_depths = full.depths[0] if same_size else None  # MORI needs input-size maps
         drawn_all = gaussians.with_scale_factor(splat_scale)
-        ref_depths: dict[int, Tensor] = {}  # input j -> every Gaussian's depth there [H,W]
+        ref_depths: dict[int, Tensor] = {}  # input j -> every splat's depth there [H,W]
         for t in scene.target_indices:
             cam = scene.cameras[t]
-            capped = None  # [N] bool: the splats this view leaves out, when it leaves any
-            if max_splat_radius is not None:
-                capped = oversized_splats(gaussians, cam, max_splat_radius)
-                capped = capped if bool(capped.any()) else None
-            drawn = (
-                drawn_all if capped is None else gaussians[~capped].with_scale_factor(splat_scale)
-            )
+            drawn = painted_view_gaussians(gaussians, cam, max_splat_radius, splat_scale)
+            capped = len(drawn) < len(gaussians)  # this view leaves some splats out
+            drawn = drawn if capped else drawn_all
             with torch.no_grad():
                 out = render(drawn, cam, background=torch.zeros(3))
             put("render", out.rgb.half())
@@ -104,22 +100,20 @@ def curate_scene(
             put("target", scene.images[t].half())
             put("kind", torch.tensor(KINDS.index(scene.target_kinds[t] or "interpolation")))
             put("inputs", torch.tensor(n))
+            # input j -> the drawn Gaussians' depth there [H,W]: shared by the targets that
+            # draw every splat, this view's own when it leaves some out (both methods share it)
+            depths_at = {} if capped else ref_depths
             for method in METHODS:
                 j = select_reference(
                     cam, cams, method=method, target_depth=out.depth, input_depths=input_depths
                 )
                 put(f"ref_{method}", scene.images[idx[j]].half())
                 put(f"F_{method}", fundamental_matrix(cam, cams[j]).float())
-                if capped is not None:  # this view's own Gaussians, as inference warps
+                if j not in depths_at:  # as inference warps: the Gaussians this view draws
                     with torch.no_grad():
-                        ref_depth = render(drawn, cams[j]).depth
-                else:  # targets (and both methods) share a few inputs
-                    if j not in ref_depths:
-                        with torch.no_grad():
-                            ref_depths[j] = render(drawn_all, cams[j]).depth
-                    ref_depth = ref_depths[j]
+                        depths_at[j] = render(drawn, cams[j]).depth
                 warp = reference_warp(
-                    drawn, cam, out.depth, out.alpha, images[j], cams[j], ref_depth
+                    drawn, cam, out.depth, out.alpha, images[j], cams[j], depths_at[j]
                 )
                 put(f"warp_{method}", warp.half())  # [4,H,W] for warp_input models
     return cols
