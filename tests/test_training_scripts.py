@@ -121,6 +121,12 @@ def _run_script(root: Path, name: str, env: dict[str, str], *args: str):
     )
 
 
+def _flag(args: list[str], flag: str) -> str:
+    """The value after ``flag``'s last occurrence: the one the training command takes (a
+    script's EXTRA_ARGS come after its recipe and override it)."""
+    return args[len(args) - 1 - args[::-1].index(flag) + 1]
+
+
 def test_generator_v8_trains_on_the_scenes_asked_for(root: Path) -> None:
     r = _run_script(
         root, "train_generator_v8.sh", {"SCENES": "10000-10001", "SUBSET": "data/sub8"}, "10"
@@ -155,13 +161,11 @@ def test_generator_v17_goes_on_from_v16_with_its_fill_recipe(root: Path) -> None
     r = _run_script(root, "train_generator_v17.sh", env, "12")
     assert r.returncode == 0, r.stderr
     args = r.stdout.split()
-    assert args[args.index("--init") + 1] == "runs/generator_v16.safetensors"
-    assert args[args.index("--out") + 1] == "runs/gen_v17a"
-    assert args[args.index("--seed") + 1] == "13"
-    assert args[args.index("--steps") + 1] == "12"
-    assert args[args.index("--data") + 1] == "data/sub17"
-    last = len(args) - 1 - args[::-1].index("--input-render-weight")  # the override wins
-    assert "--fill-holes" in args and args[last + 1] == "2"
+    expect = {"--init": "runs/generator_v16.safetensors", "--out": "runs/gen_v17a",
+              "--seed": "13", "--steps": "12", "--data": "data/sub17",
+              "--input-render-weight": "2"}  # fmt: skip
+    assert {flag: _flag(args, flag) for flag in expect} == expect
+    assert "--fill-holes" in args
     default = _run_script(root, "train_generator_v17.sh", {}, "12")
     assert default.returncode != 0 and "no scene with seed 10003" in default.stderr
 
