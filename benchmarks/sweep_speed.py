@@ -10,7 +10,8 @@ turns, so the rest of the network is the same code both ways.
 
 Part 1 times the two ways to correlate one neighbour (``warped_correlation``,
 ``sampled_correlation``) at the generator's feature shapes, which is where
-``ALL_PAIRS_MAX_PIXELS`` comes from.
+``ALL_PAIRS_MAX_PIXELS`` comes from. Part 2 times the pieces that changed (box filter, warp
+grid, inference correlation) before and now; ``--parts-only`` stops there.
 
     OMP_NUM_THREADS=1 python benchmarks/sweep_speed.py --before f3f56fe \\
         --generator runs/generator_v14a.safetensors --scenes 6
@@ -51,9 +52,9 @@ def _module_at(commit: str, path: str, name: str, folder: Path):
     return module
 
 
-def sweeps_at(commit: str, folder: Path) -> tuple:
-    """(plane_sweep_cost_volume, image_cost_volume) as at ``commit``, wired to each other's
-    code of that commit (the image volume's warp grid and box filters included)."""
+def modules_at(commit: str, folder: Path) -> tuple:
+    """(cost_volume, plane_sweep, image_cost) as at ``commit``, the image volume wired to
+    the warp grid and box filters of that commit."""
     cv = _module_at(commit, "prosplat/generator/cost_volume.py", "old_cost_volume", folder)
     ps = _module_at(commit, "prosplat/baselines/plane_sweep.py", "old_plane_sweep", folder)
     ic = _module_at(commit, "prosplat/generator/image_cost.py", "old_image_cost", folder)
@@ -62,7 +63,58 @@ def sweeps_at(commit: str, folder: Path) -> tuple:
         ps.patch_mean_var,
         ps.window_zncc,
     )
+    return cv, ps, ic
+
+
+def sweeps_at(commit: str, folder: Path) -> tuple:
+    """(plane_sweep_cost_volume, image_cost_volume) as at ``commit`` (:func:`modules_at`)."""
+    cv, _, ic = modules_at(commit, folder)
     return cv.plane_sweep_cost_volume, ic.image_cost_volume
+
+
+def _interleaved_ms(fn, modules: tuple, repeats: int) -> list[float]:
+    """Median milliseconds of ``fn(module)`` for each module, the modules taking turns in
+    every round so that all see the same machine load."""
+    for module in modules:  # warm up
+        fn(module)
+    times: list[list[float]] = [[] for _ in modules]
+    for _ in range(repeats):
+        for k, module in enumerate(modules):
+            t0 = time.perf_counter()
+            fn(module)
+            times[k].append(time.perf_counter() - t0)
+    return [statistics.median(t) * 1e3 for t in times]
+
+
+def time_parts(before: tuple, repeats: int, size: int = 64) -> None:
+    """The three pieces that changed, before and now, at the image sweep's shapes for 128-px
+    inputs (4 views, 32 candidates, ``size`` x ``size``): the ZNCC box filter (5 statistics,
+    window 5), one neighbour's warp grid, and the learned volume's correlation of 16
+    channels without gradients."""
+    from prosplat.baselines import plane_sweep
+
+    old_cv, old_ps, _ = before
+    g = torch.Generator().manual_seed(1)
+    stats = torch.rand(4, 5, 32, size, size, generator=g)
+    K = torch.tensor([[size, 0.0, size / 2], [0.0, size, size / 2], [0.0, 0.0, 1.0]])
+    K = K.expand(1, 4, 3, 3).clone()
+    w2c = torch.eye(4).expand(1, 4, 4, 4).clone()
+    w2c[0, :, 0, 3] = torch.tensor([0.0, 0.3, 0.6, 0.9])
+    nbr = cost_volume.nearest_views(w2c, 1)[..., 0]
+    planes = cost_volume.inverse_depth_candidates(torch.tensor([1.0]), torch.tensor([20.0]), 32)
+    feats = torch.randn(1, 4, 16, size, size, generator=g)
+    warped = torch.randn(1, 4, 16, 32, size, size, generator=g)
+    parts = {
+        "box filter": (lambda m: m.box_mean(stats, 5), old_ps, plane_sweep),
+        "warp grid": (lambda m: m.warp_grid(K, w2c, nbr, planes, size, size), old_cv, cost_volume),
+        "correlation": (lambda m: m.correlate(feats, warped), old_cv, cost_volume),
+    }
+    print(f"\n| part ({size}x{size}, 32 planes) | before ms | now ms | ratio |")
+    print("|---|---:|---:|---:|")
+    with torch.no_grad():
+        for name, (fn, then, now) in parts.items():
+            a, b = _interleaved_ms(fn, (then, now), repeats)
+            print(f"| {name} | {a:.1f} | {b:.1f} | {a / b:.2f}x |")
 
 
 def time_correlations(repeats: int) -> None:
@@ -138,11 +190,15 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=6)
     ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
     ap.add_argument("--repeats", type=int, default=3, help="timed rounds per scene and way")
+    ap.add_argument("--parts-only", action="store_true", help="skip the whole generator")
     args = ap.parse_args()
     print(f"torch threads {torch.get_num_threads()}")
     time_correlations(max(args.repeats, 5))
     with tempfile.TemporaryDirectory() as tmp:
-        time_generator(args, sweeps_at(args.before, Path(tmp)))
+        before = modules_at(args.before, Path(tmp))
+        time_parts(before, max(args.repeats, 7))
+        if not args.parts_only:
+            time_generator(args, (before[0].plane_sweep_cost_volume, before[2].image_cost_volume))
 
 
 if __name__ == "__main__":

@@ -76,3 +76,12 @@ def test_correlation_table_runs(capsys) -> None:
     bench.SHAPES = ((4, 8, 8),)
     bench.time_correlations(1)
     assert "| 4, 8, 8 |" in capsys.readouterr().out
+
+
+def test_parts_table_runs(before, tmp_path, capsys) -> None:
+    """Part 2 times the changed pieces of the commit before against now (tiny shapes)."""
+    bench = load_benchmark("sweep_speed")
+    bench.time_parts(bench.modules_at(BEFORE, tmp_path), 1, size=16)
+    out = capsys.readouterr().out
+    for part in ("box filter", "warp grid", "correlation"):
+        assert f"| {part} |" in out

@@ -91,7 +91,7 @@ def _box_sum(x: Tensor, r: int, dim: int) -> Tensor:
     """Sum over positions i-r..i+r along ``dim`` (zeros beyond it), by a running sum: two
     passes whatever the window, where a pooling kernel reads every window. The window's ends
     are sliced out of the running sum in place of padding it, and the dim is summed where it
-    lies, not transposed last: 1.5x the speed of padding and transposing (the ZNCC
+    lies, not transposed last: 1.3x the speed of padding and transposing (the ZNCC
     statistics of a 64x64, 32-plane sweep)."""
     n = x.shape[dim]
     c = x.cumsum(dim)
@@ -114,7 +114,7 @@ def _box_sum(x: Tensor, r: int, dim: int) -> Tensor:
 def box_mean(x: Tensor, window: int = WINDOW) -> Tensor:
     """Mean over the ``window`` x ``window`` neighbourhood (odd; border windows shrink, not
     zero-pad) of the last two dimensions: ``avg_pool2d(x, window, 1, window // 2,
-    count_include_pad=False)`` to float rounding (tests/test_baselines.py), at a quarter of its
+    count_include_pad=False)`` to float rounding (tests/test_baselines.py), at under a third of its
     time (it was half of a sweep's)."""
     if window < 1 or window % 2 == 0:
         raise ValueError(f"box_mean: window must be odd and >= 1, got {window}")

@@ -96,8 +96,8 @@ def warp_grid(K: Tensor, w2c: Tensor, nbr: Tensor, depths: Tensor, h: int, w: in
         [B,V,D,h,w,2] normalised coordinates for grid_sample(align_corners=False); points
         behind (or on) the neighbour's image plane are sent to (-2, -2), outside the image,
         so they sample zeros. No gradient: cameras and candidates are inputs, never learned
-        (a band's depths come in detached), which lets the grid be built in place: half
-        the time for 32 candidates at 64x64 (BENCHMARKS "Faster sweeps").
+        (a band's depths come in detached), which lets the grid be built in place: 1.5x
+        the speed for 32 candidates at 64x64 (BENCHMARKS "Faster sweeps").
     """
     A, b = _relative_projection(K, w2c, nbr)  # [B,V,3,3], [B,V,3]
     z = _candidate_depths(depths, K.shape[1], h * w)  # [B,V',D,hw]
@@ -140,7 +140,7 @@ def correlate(feats: Tensor, warped: Tensor) -> Tensor:
     if torch.is_grad_enabled() and (feats.requires_grad or warped.requires_grad):
         return (feats.unsqueeze(3) * warped).sum(2)
     # without gradients, one channel at a time into the [B,V,D,h,w] result: the C-fold
-    # product is never stored, 1.6x the speed for 16 channels at 64x64
+    # product is never stored, 4x the speed for 16 channels at 64x64
     out = torch.zeros_like(warped[:, :, 0])
     for c in range(feats.shape[2]):
         out.addcmul_(warped[:, :, c], feats[:, :, c, None])
@@ -150,8 +150,9 @@ def correlate(feats: Tensor, warped: Tensor) -> Tensor:
 #: Feature maps of at most this many pixels are correlated all pairs first
 #: (:func:`sampled_correlation`); larger ones are warped, then correlated. Timed on one CPU
 #: thread, 4 views, 32 candidates, without gradients (`benchmarks/sweep_speed.py`): the
-#: all-pairs way took 1/10 of the time for 48 channels at 16x16, 1/1.8 for 48 at 32x32 and
-#: 1/1.1 for 16 at 32x32, but 4x the time for 16 at 64x64, as its matmul grows with the
+#: all-pairs way was 4.5-10x faster for 48 channels at 16x16, 1.7-1.8x for 48 at 32x32 and
+#: about level for 16 at 32x32 (0.7-1.3x over four runs), but 4x slower for 16 at 64x64, as
+#: its matmul grows with the
 #: square of the pixels (BENCHMARKS "Faster sweeps").
 ALL_PAIRS_MAX_PIXELS = 1024
 
