@@ -11,9 +11,14 @@ enhance every camera that will be shown, then refine the Gaussians against the i
 photographs and those enhanced views together (:func:`prosplat.refine.refine`), and render
 the cameras from the distilled Gaussians. One set of Gaussians cannot disagree with itself,
 so the frames are as consistent as raw renders, and fitting many enhanced views at once keeps
-what they agree on. On the test ladder 800 steps give +0.3 dB over the enhanced views at
-64 and 128 px, with no scene type below them, and flicker at the raw renders' level
-(BENCHMARKS "Distilled views"); the price is 0.01-0.02 LPIPS, blur where the views disagree.
+what they agree on. Refinement never adds Gaussians, and the generator leaves holes where
+no input saw (since v16 even in its own input views), so every pixel of the inputs and views
+that the Gaussians leave uncovered first gets a Gaussian of its own
+(:mod:`prosplat.hole_gaussians`); without that the distilled views keep those holes black.
+With generator v16 and stage 2 v22 on the test ladder, 800 steps give +0.14 dB over the
+enhanced views at 64 px at the same LPIPS and 400 steps tie them at 64 and 128 px;
+tabletops lose 0.1-0.2 dB; a camera path flickers 0.69x the raw renders' (enhanced one by
+one 0.77x) (BENCHMARKS "Distilled views with generator v16").
 
 What it costs: one enhancement per view plus the refinement steps, all before the first
 frame comes out; so it is a choice for a set of views or a path (``--distill-steps``), not
@@ -33,12 +38,14 @@ from torch import Tensor
 from prosplat.camera import Camera
 from prosplat.enhance import EnhanceOptions, render_view
 from prosplat.gaussians import Gaussians
+from prosplat.hole_gaussians import hole_gaussians
 from prosplat.refine import RefineOptions, RefineResult, RefineStats, refine
 
 #: Refinement steps a distillation runs when the caller names neither steps nor seconds,
-#: measured on the test ladder: 200 tie the enhanced views, 400 beat them by +0.2-0.3 dB but
-#: lose on some scene types, 800 beat them on every type at 64 and 128 px. Each step fits one
-#: view, so a long path (hundreds of frames) visits each view only a few times.
+#: measured on the test ladder (generator v16, stage 2 v22, holes seeded): 400 tie the
+#: enhanced views at 64 and 128 px, 800 beat them by +0.14 dB at 64 px (with v3 + v6: 400
+#: +0.2-0.3 dB, 800 every scene type above them). Each step fits one view, so a long path
+#: (hundreds of frames) visits each view only a few times.
 DEFAULT_DISTILL_STEPS = 800
 
 
@@ -125,6 +132,7 @@ def distill(
     progress: Callable[[int, int | None, float], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     options: RefineOptions | None = None,
+    seed_holes: bool = True,
 ) -> RefineResult:
     """Refine ``gaussians`` against the inputs and ``views`` together.
 
@@ -137,6 +145,11 @@ def distill(
         steps / seconds: the refinement's length, at most one (neither:
             :data:`DEFAULT_DISTILL_STEPS`); ``seed``, ``progress``, ``cancel``, ``options``:
             as :func:`prosplat.refine.refine`.
+        seed_holes: first give every pixel of the inputs and views that ``gaussians`` leave
+            uncovered a Gaussian of its own (:func:`prosplat.hole_gaussians.hole_gaussians`),
+            so the fit can show what the views show there; refinement never adds Gaussians,
+            and the generator leaves holes even in its own input views. The result then
+            holds more Gaussians than ``gaussians``.
     Raises:
         ValueError: no views, views and cameras that do not pair up, a view of another
             aspect ratio, or what :func:`prosplat.refine.refine` refuses.
@@ -154,10 +167,14 @@ def distill(
     fitted = [
         _at_input_size(v, c, height, width, k) for k, (v, c) in enumerate(zip(views, view_cameras))
     ]
+    targets = torch.cat([images, torch.stack([v for v, _ in fitted]).to(images)])  # [N+T,3,H,W]
+    target_cameras = list(cameras) + [c for _, c in fitted]
+    if seed_holes:
+        gaussians = hole_gaussians(gaussians, targets, target_cameras)
     return refine(
         gaussians,
-        torch.cat([images, torch.stack([v for v, _ in fitted]).to(images)]),
-        list(cameras) + [c for _, c in fitted],
+        targets,
+        target_cameras,
         steps=steps,
         seconds=seconds,
         seed=seed,

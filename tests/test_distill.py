@@ -10,6 +10,7 @@ from prosplat import render
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians
 from prosplat.distill import distill, distill_enhanced, enhance_views, fits_inputs
 from prosplat.flicker import flicker
+from prosplat.hole_gaussians import hole_gaussians
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.model import ImproveModel
 from prosplat.metrics import psnr
@@ -47,7 +48,29 @@ def test_distilling_right_views_makes_them_right(scene):
         _views_psnr(inputs_only, scene),
     )
     assert ours > start + 4.0 and ours > base + 2.0, (start, ours, base)
-    assert len(fitted) == len(scene["start"])
+    seeded = hole_gaussians(scene["start"], torch.cat([images, views]), cams + view_cams)
+    assert len(fitted) == len(seeded) > len(scene["start"])  # the views' holes were seeded
+
+
+def test_seeded_holes_are_fitted_and_shown(scene):
+    """The pixels the start leaves uncovered in a view get Gaussians, so the distilled views
+    show what the views show there; without seeding (``seed_holes=False``) the count is the
+    start's, the holes stay black and the views score lower."""
+    images, cams = scene["images"][INPUTS], [scene["cams"][i] for i in INPUTS]
+    views, view_cams = scene["images"][VIEWS], [scene["cams"][i] for i in VIEWS]
+    runs = {
+        seeded: distill(
+            scene["start"], images, cams, views, view_cams, steps=60, seed_holes=seeded
+        ).gaussians
+        for seeded in (True, False)
+    }
+    assert len(runs[False]) == len(scene["start"]) < len(runs[True])
+    with torch.no_grad():
+        alpha = {
+            k: min(float(render(g, c).alpha.min()) for c in view_cams) for k, g in runs.items()
+        }
+    assert alpha[False] < 0.2 and alpha[True] > 0.5, alpha
+    assert _views_psnr(runs[True], scene) > _views_psnr(runs[False], scene) + 0.5
 
 
 def test_distilled_frames_are_as_consistent_as_raw_renders(scene):
