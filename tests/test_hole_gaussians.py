@@ -7,9 +7,8 @@ import torch
 
 from prosplat import Gaussians, render
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians
-from prosplat.hole_gaussians import HOLE_ALPHA, hole_gaussians
+from prosplat.hole_gaussians import HOLE_ALPHA, backdrop_depth, hole_gaussians
 from prosplat.metrics import psnr
-from prosplat.render.hole_fill import fill_colour
 
 SIZE = 32
 
@@ -28,14 +27,16 @@ def views():
 
 
 def test_every_hole_pixel_gets_its_gaussian_on_its_ray(views):
-    """One new Gaussian per hole pixel (alpha below HOLE_ALPHA with a depth to continue),
-    centred on that pixel at the pull-push continuation of the rendered depth, with the
-    image's colour at that pixel; the given Gaussians come first, unchanged."""
+    """One new Gaussian per hole pixel (alpha below HOLE_ALPHA), centred on that pixel at the
+    farthest depth the view's covered pixels reach, with the image's colour at that pixel;
+    the given Gaussians come first, unchanged."""
     cam, image, start = views["cams"][1], views["images"][1], views["start"]
     out = render(start, cam)
-    depth = fill_colour((out.depth * out.alpha).expand(3, -1, -1), out.alpha)[0]
-    seed = (out.alpha < HOLE_ALPHA) & (depth > 0)
+    seed = out.alpha < HOLE_ALPHA
     assert 50 < int(seed.sum()) < SIZE * SIZE  # the case at hand has holes and cover
+    far = float(out.depth[~seed].max())
+    assert backdrop_depth(out.depth, out.alpha) == far
+    assert far > float(out.depth[~seed].median()) * 1.05  # a backdrop, not a typical depth
 
     g = hole_gaussians(start, image[None], [cam])
     n = len(start)
@@ -45,7 +46,7 @@ def test_every_hole_pixel_gets_its_gaussian_on_its_ray(views):
     new = g[torch.arange(n, len(g))]
     uv, z = cam.project(new.means)
     torch.testing.assert_close(uv, cam.pixel_centers(uv.dtype)[seed])
-    torch.testing.assert_close(z, depth[seed].to(z.dtype))
+    torch.testing.assert_close(z, torch.full_like(z, far))
     colour = new.sh[:, 0] * 0.28209479177387814 + 0.5
     torch.testing.assert_close(colour, image[:, seed].T.to(colour.dtype))
 
@@ -76,7 +77,7 @@ def test_views_in_order_seed_a_shared_hole_once(views):
 
 def test_nothing_to_seed():
     """A view the Gaussians cover completely, or one where they cover nothing (no depth to
-    continue), adds no Gaussian."""
+    go on), adds no Gaussian."""
     cams = orbit_cameras(2, SIZE, SIZE, arc_deg=10.0)
     g = pixel_aligned_gaussians(cams)
     images = torch.stack([render(g, c).rgb for c in cams]).clamp(0, 1)
@@ -85,6 +86,8 @@ def test_nothing_to_seed():
         g.means - 100 * cams[0].forward.to(g.means), g.quats, g.scales, g.opacities, g.sh
     )  # every Gaussian behind the camera
     assert len(hole_gaussians(behind, images[:1], cams[:1])) == len(g)
+    out = render(behind, cams[0])
+    assert backdrop_depth(out.depth, out.alpha) is None
 
 
 def test_bad_views_are_refused(views):
