@@ -15,10 +15,9 @@ what they agree on. Refinement never adds Gaussians, and the generator leaves ho
 no input saw (since v16 even in its own input views), so every pixel of the inputs and views
 that the Gaussians leave uncovered first gets a Gaussian of its own
 (:mod:`prosplat.hole_gaussians`); without that the distilled views keep those holes black.
-With generator v16 and stage 2 v22 on the test ladder, 800 steps give +0.14 dB over the
-enhanced views at 64 px at the same LPIPS and 400 steps tie them at 64 and 128 px;
-tabletops lose 0.1-0.2 dB; a camera path flickers 0.69x the raw renders' (enhanced one by
-one 0.77x) (BENCHMARKS "Distilled views with generator v16").
+With generator v16 and stage 2 v22 on the test ladder, 800 steps give +0.22 dB over the
+enhanced views at 64 px and 400 steps +0.10 dB at 128 px, at the same LPIPS, with no scene
+type below them (BENCHMARKS "Distilled views with generator v16").
 
 What it costs: one enhancement per view plus the refinement steps, all before the first
 frame comes out; so it is a choice for a set of views or a path (``--distill-steps``), not
@@ -42,10 +41,10 @@ from prosplat.hole_gaussians import hole_gaussians
 from prosplat.refine import RefineOptions, RefineResult, RefineStats, refine
 
 #: Refinement steps a distillation runs when the caller names neither steps nor seconds,
-#: measured on the test ladder (generator v16, stage 2 v22, holes seeded): 400 tie the
-#: enhanced views at 64 and 128 px, 800 beat them by +0.14 dB at 64 px (with v3 + v6: 400
-#: +0.2-0.3 dB, 800 every scene type above them). Each step fits one view, so a long path
-#: (hundreds of frames) visits each view only a few times.
+#: measured on the test ladder (generator v16, stage 2 v22, holes seeded): at 64 px 400
+#: beat the enhanced views by +0.13 dB and 800 by +0.22, with no scene type below them
+#: (with v3 + v6: 400 +0.2-0.3 dB, some types below). Each step fits one view, so a long
+#: path (hundreds of frames) visits each view only a few times.
 DEFAULT_DISTILL_STEPS = 800
 
 
