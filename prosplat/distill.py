@@ -168,8 +168,9 @@ def distill(
     ]
     targets = torch.cat([images, torch.stack([v for v, _ in fitted]).to(images)])  # [N+T,3,H,W]
     target_cameras = list(cameras) + [c for _, c in fitted]
-    if seed_holes:
-        gaussians = hole_gaussians(gaussians, targets, target_cameras)
+    if seed_holes:  # not where the views show the background the fit composites over
+        background = None if options is None else options.background
+        gaussians = hole_gaussians(gaussians, targets, target_cameras, background=background)
     return refine(
         gaussians,
         targets,

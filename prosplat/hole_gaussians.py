@@ -31,7 +31,7 @@ from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 from prosplat.render import render
 
-__all__ = ["HOLE_ALPHA", "backdrop_depth", "hole_gaussians"]
+__all__ = ["BACKGROUND_TOLERANCE", "HOLE_ALPHA", "backdrop_depth", "hole_gaussians"]
 
 #: A pixel whose render alpha is below this is a hole: what covers it is mostly background.
 HOLE_ALPHA = 0.5
@@ -39,6 +39,10 @@ HOLE_ALPHA = 0.5
 #: A seeded Gaussian's scale in pixel footprints (depth / focal length), about what the
 #: generator's adapter predicts for its own pixels, so neighbours blend without gaps.
 FOOTPRINT = 0.7
+
+#: With a background colour, a hole pixel whose image is within this of it in every channel
+#: shows the background already and gets no Gaussian (about 5/255).
+BACKGROUND_TOLERANCE = 0.02
 
 #: A seeded Gaussian's opacity: opaque enough to cover its pixel, below 1 so that the fit's
 #: opacity gradient is not saturated.
@@ -60,6 +64,7 @@ def hole_gaussians(
     cameras: Sequence[Camera],
     *,
     hole_alpha: float = HOLE_ALPHA,
+    background: Sequence[float] | Tensor | None = None,
 ) -> Gaussians:
     """``gaussians`` and one new Gaussian per hole pixel of each view.
 
@@ -68,6 +73,10 @@ def hole_gaussians(
         images: [V,3,H,W] what each view shows, in [0, 1] (photographs, enhanced views).
         cameras: one W x H camera per image.
         hole_alpha: pixels rendered with alpha below it are holes (:data:`HOLE_ALPHA`).
+        background: the RGB the images were composited over, if not black (a NeRF-synthetic
+            set's white): a hole pixel showing it gets no Gaussian, since the background
+            already shows there and a wall of Gaussians in its colour would stand in the
+            scene (:data:`BACKGROUND_TOLERANCE`). None: every hole pixel gets one.
 
     Returns:
         The input Gaussians first, unchanged, then the new ones (SH of the input's degree,
@@ -80,6 +89,7 @@ def hole_gaussians(
             f"{list(images.shape)} for {len(cameras)} cameras"
         )
     dtype, device = gaussians.means.dtype, gaussians.means.device
+    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32)  # [3]
     scene = gaussians
     for image, cam in zip(images, cameras):
         if (cam.height, cam.width) != tuple(image.shape[-2:]):
@@ -89,6 +99,9 @@ def hole_gaussians(
             )
         out = render(scene, cam)
         hole = out.alpha < hole_alpha  # [H,W]
+        if bg is not None:
+            shows_bg = ((image.to(bg) - bg[:, None, None]).abs() <= BACKGROUND_TOLERANCE).all(0)
+            hole &= ~shows_bg.to(hole.device)
         if not bool(hole.any()):
             continue
         far = backdrop_depth(out.depth, out.alpha, hole_alpha)

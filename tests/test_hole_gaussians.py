@@ -96,3 +96,18 @@ def test_bad_views_are_refused(views):
         hole_gaussians(start, images[:2], cams[:1])
     with pytest.raises(ValueError, match="an image of"):
         hole_gaussians(start, images[:1, :, :16], cams[:1])
+
+
+def test_holes_showing_the_background_get_none(views):
+    """With the background the images were composited over (a NeRF-synthetic set's white),
+    a hole pixel that shows it gets no Gaussian; the other holes still do."""
+    cam, start = views["cams"][1], views["start"]
+    image = views["images"][1].clone()
+    image[:, :, : SIZE // 2] = 1.0  # the left half shows a white background
+    hole = render(start, cam).alpha < HOLE_ALPHA
+    shows_bg = torch.zeros_like(hole)
+    shows_bg[:, : SIZE // 2] = True
+    assert int((hole & shows_bg).sum()) > 20 and int((hole & ~shows_bg).sum()) > 20
+    g = hole_gaussians(start, image[None], [cam], background=(1.0, 1.0, 1.0))
+    assert len(g) == len(start) + int((hole & ~shows_bg).sum())
+    assert len(hole_gaussians(start, image[None], [cam])) == len(start) + int(hole.sum())

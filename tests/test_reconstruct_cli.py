@@ -319,9 +319,9 @@ def test_distill_steps_fit_the_enhanced_renders(colmap_text, tmp_path, capsys):
     out = tmp_path / "out"
     assert cli("reconstruct", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
                "--render", "all", "--distill-steps", "150") == 0  # fmt: skip
-    assert read_ply(out / "gaussians_distilled.ply").means.shape == (
-        read_ply(out / "gaussians.ply").means.shape
-    )
+    # the same Gaussians, refined, and one more for each hole pixel of the fitted views
+    # (prosplat.hole_gaussians)
+    assert len(read_ply(out / "gaussians_distilled.ply")) >= len(read_ply(out / "gaussians.ply"))
     gaps = []
     for name in ("001", "002", "003"):
         raw, enh, dis = (read_image(out / "renders" / f"{name}_{k}.png")
