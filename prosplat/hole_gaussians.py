@@ -29,6 +29,7 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
+from prosplat.pixel_gaussians import pixel_gaussians
 from prosplat.render import render
 
 __all__ = ["BACKGROUND_TOLERANCE", "HOLE_ALPHA", "backdrop_depth", "hole_gaussians"]
@@ -107,12 +108,7 @@ def hole_gaussians(
         far = backdrop_depth(out.depth, out.alpha, hole_alpha)
         if far is None:
             continue
-        uv = cam.pixel_centers(dtype).to(device)[hole]  # [K,2]
-        z = torch.full((len(uv),), far, dtype=dtype, device=device)  # [K]
-        means = cam.to(device).unproject(uv, z)  # [K,3]
-        scales = (FOOTPRINT * z / cam.fx)[:, None].expand(-1, 3).contiguous()  # [K,3]
-        colors = image.to(device=device, dtype=dtype)[:, hole].T.clamp(0, 1)  # [K,3]
-        opacities = torch.full_like(z, OPACITY)
-        new = Gaussians.from_colors(means, colors, scales, opacities, sh_degree=scene.sh_degree)
+        depth = torch.zeros(hole.shape, dtype=dtype, device=device).masked_fill_(hole, far)
+        new = pixel_gaussians(image, depth, cam, FOOTPRINT, OPACITY, sh_degree=scene.sh_degree)
         scene = Gaussians.cat([scene, new])
     return scene

@@ -22,6 +22,7 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
+from prosplat.pixel_gaussians import pixel_gaussians
 
 #: a true-depth Gaussian's standard deviation in units of its pixel's footprint (depth / fx).
 #: Small enough not to smear the input's own view (the rasterizer adds 0.3 px² anyway), large
@@ -66,7 +67,7 @@ def true_depth_gaussians(
             depth), "surface" (pixels with depth only) or "sky" (the sky pixels only).
     Returns:
         Gaussians (float32, SH degree 0): means [N,3] on the surfaces, colour = the pixel's,
-        isotropic scale ``FOOTPRINT_SIGMA * depth / fx``, opacity ``TRUE_DEPTH_OPACITY``;
+        isotropic scale ``FOOTPRINT_SIGMA * depth / min(fx, fy)``, opacity ``TRUE_DEPTH_OPACITY``;
         N = the number of pixels in ``part``.
     """
     if images.ndim != 4 or depths.shape != (images.shape[0], *images.shape[-2:]):
@@ -78,25 +79,17 @@ def true_depth_gaussians(
         raise ValueError(f"true_depth_gaussians: {len(cameras)} cameras for {len(images)} images")
     if part not in ("all", "surface", "sky"):
         raise ValueError(f"true_depth_gaussians: part must be all, surface or sky, got {part!r}")
-    means, colors, scales = [], [], []
     surface = depths[depths > 0]
     sky_depth = SKY_DEPTH_FACTOR * float(surface.max()) if surface.numel() else 1.0
+    parts = []
     for image, depth, cam in zip(images, depths, cameras):
-        d = depth.to(torch.float64)
+        d = depth.to(torch.float64)  # [H,W] float64: sky depths are far for float32 means
         if part == "sky":
             d = torch.where(d > 0, torch.zeros_like(d), torch.full_like(d, sky_depth))
         elif part == "all":
             d = torch.where(d > 0, d, torch.full_like(d, sky_depth))
-        ok = d > 0  # [H,W]
-        uv = cam.to(dtype=torch.float64).pixel_centers(torch.float64)[ok]  # [P,2]
-        means.append(cam.to(dtype=torch.float64).unproject(uv, d[ok]))  # [P,3]
-        colors.append(image.permute(1, 2, 0)[ok].to(torch.float64))  # [P,3]
-        footprint = d[ok] / min(cam.fx, cam.fy)  # [P] one pixel's width at that depth
-        scales.append((FOOTPRINT_SIGMA * footprint)[:, None].expand(-1, 3))  # [P,3]
-    means_t = torch.cat(means)
-    opacities = torch.full((len(means_t),), TRUE_DEPTH_OPACITY, dtype=torch.float64)
-    g = Gaussians.from_colors(means_t, torch.cat(colors).clamp(0, 1), torch.cat(scales), opacities)
-    return g.to(dtype=torch.float32)
+        parts.append(pixel_gaussians(image, d, cam, FOOTPRINT_SIGMA, TRUE_DEPTH_OPACITY))
+    return Gaussians.cat(parts).to(dtype=torch.float32)
 
 
 def valid_mask(
