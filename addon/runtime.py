@@ -43,7 +43,7 @@ class Defaults:
     weights_path: str = ""
     improve_weights_path: str = ""
     enhance: bool = True
-    fill_holes: bool = False  # BENCHMARKS "Holes in the raw render": not a gain on every scene
+    fill_holes: str = "RAW"  # BENCHMARKS "Raw views filled by default": why raw views only
     budget: int = 0
     refine_seconds: float = 3.0  # README, "Refinement": why this default
     distill_steps: int = 0  # README, "Consistent views": off, since it costs before frame one

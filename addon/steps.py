@@ -290,7 +290,7 @@ def render_job(gaussians, targets, scene, output_dir: str, context=None, inputs=
         "inputs": frames,
         "output_dir": str(out),
         "enhance": bool(p.enhance if enhance is None else enhance),
-        "fill_holes": bool(getattr(p, "fill_holes", False)),
+        "fill_holes": str(getattr(p, "fill_holes", runtime.Defaults.fill_holes)).lower(),
         "distill_steps": int(getattr(p, "distill_steps", 0)),
         "save_raw": bool(save_raw),
         "save_depth": bool(save_depth),

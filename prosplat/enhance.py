@@ -301,6 +301,7 @@ def render_view(
     dtype: torch.dtype = torch.float32,
     options: EnhanceOptions | None = None,
     fill_holes: bool = False,
+    fill_enhanced: bool = True,
     splat_scale: float = 1.0,
     max_splat_radius: float | None = MAX_SPLAT_RADIUS,
 ) -> EnhancedView:
@@ -314,7 +315,10 @@ def render_view(
     ``improver``, or the guard kept it) is composited over that fill, an enhanced one is
     blended with it by the render's alpha (``α · enhanced + (1 − α) · fill``: stage 2 kept
     where the Gaussians cover the view). ``raw`` stays the render on black, which is what
-    stage 2 takes. Not with a ``background``.
+    stage 2 takes. Not with a ``background``. ``fill_enhanced=False`` leaves an enhanced image
+    as stage 2 made it, so the fill shows only in a raw or guarded view: the blend is level in
+    PSNR but costs LPIPS on enhanced views (BENCHMARKS "Generator v16 and stage 2 v22"), while
+    a raw view on black loses several dB.
     ``splat_scale``: the Gaussians render with their scales multiplied by it
     (:meth:`Gaussians.with_scale_factor`; ``raw``, ``alpha``, ``depth`` and stage 2's input
     are that render). :data:`SPLAT_SCALE` suits the generator's unrefined Gaussians in a filled
@@ -381,6 +385,6 @@ def render_view(
             image = render(as_given, camera, background=background).rgb
     elif reason is not None:
         image = shown
-    elif fill is not None:
+    elif fill is not None and fill_enhanced:
         image = out.alpha * image + (1 - out.alpha) * fill
     return EnhancedView(image, out.rgb, out.alpha, out.depth, ref, timings, reason)

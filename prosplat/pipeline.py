@@ -674,6 +674,7 @@ class ProSplat:
         dtype: torch.dtype = torch.float32,
         options: EnhanceOptions | None = None,
         fill_holes: bool = False,
+        fill_enhanced: bool = True,
         splat_scale: float = 1.0,
         max_splat_radius: float | None = MAX_SPLAT_RADIUS,
     ) -> EnhancedView:
@@ -687,7 +688,9 @@ class ProSplat:
         reason in ``view.guard``. ``fill_holes``: a raw ``image`` (``enhance=False`` or
         guarded) has the holes no input saw filled from its own colours instead of black
         (:mod:`prosplat.render.hole_fill`; +3.1 / +3.5 / +4.1 dB at 64 / 128 / 256 px on the
-        test scenes). ``splat_scale``: the Gaussians' scales multiplied by it for this render
+        test scenes); an enhanced one is blended with the fill by the render's alpha unless
+        ``fill_enhanced=False``, which keeps the fill to raw and guarded views.
+        ``splat_scale``: the Gaussians' scales multiplied by it for this render
         (:data:`prosplat.enhance.SPLAT_SCALE` suits the generator's unrefined Gaussians in a
         filled raw view; refined ones, and views the shipped stage 2 enhances, are best left at
         1). ``max_splat_radius``: a filled or enhanced view leaves out the splats this camera
@@ -717,6 +720,7 @@ class ProSplat:
             dtype=dtype,
             options=options,
             fill_holes=fill_holes,
+            fill_enhanced=fill_enhanced,
             splat_scale=splat_scale,
             max_splat_radius=max_splat_radius,
         )

@@ -185,6 +185,33 @@ def test_render_view_distills_when_asked(tabletop, tmp_path: Path) -> None:
     assert "distilled from every enhanced view" in steps.describe_render(res)
 
 
+def test_raw_render_views_fill_the_holes_by_default(tabletop, tmp_path: Path) -> None:
+    """Fill Holes defaults to Raw Renders: a raw Render View shows the fill where no input
+    saw the scene instead of black (which costs the shipped generator about 9 dB); "off" leaves
+    the black."""
+    from addon import runtime, steps
+
+    scene, inputs, target, folder = tabletop
+    coll = scene.prosplat.inputs
+    g = api.reconstruct(coll, name="holes", refine_seconds=0.0)
+    assert runtime.Defaults.fill_holes == "RAW"
+    assert steps.render_job(g, [], scene, str(tmp_path), None, coll)[1]["fill_holes"] == "raw"
+    filled, black = (
+        read_image(
+            api.render_views(
+                g, [target], tmp_path / str(m), inputs=coll, enhance=False, fill_holes=m
+            )["views"][0]["image"]
+        )  # fmt: skip
+        for m in (None, "off")  # None: the job's own setting
+    )
+    dark = black.amax(0) < 1.5 / 255  # [H,W] the holes, black
+    assert float(dark.float().mean()) > 0.01, "the target view should have holes to fill"
+    assert float((filled[:, dark].amax(0) > 0.02).float().mean()) > 0.9
+    assert float(psnr(filled, read_image(folder / "cycles.png"))) > float(
+        psnr(black, read_image(folder / "cycles.png"))
+    )
+
+
 @pytest.mark.slow
 def test_enhanced_beats_raw_against_cycles(tabletop, tmp_path: Path) -> None:
     from prosplat.worker.tasks import load_model

@@ -13,7 +13,7 @@ from prosplat.camera import Camera
 from prosplat.enhance import render_view
 from prosplat.gaussians import Gaussians
 from prosplat.render import render
-from prosplat.render.hole_fill import fill_holes
+from prosplat.render.hole_fill import fill_colour, fill_holes
 
 
 def _nearest_covered(rgb: torch.Tensor, covered: torch.Tensor) -> torch.Tensor:
@@ -160,6 +160,33 @@ def test_splat_scale_renders_the_gaussians_smaller_and_a_guarded_view_at_their_o
     assert torch.equal(guarded.image, render(g, cam).rgb)  # the Gaussians as given, on black
     filled = render_view(g, cam, images, [cam], scribbler, splat_scale=0.5, fill_holes=True)
     assert filled.guard is not None and torch.allclose(filled.image, view.image)
+
+
+def test_fill_enhanced_false_keeps_the_fill_to_raw_and_guarded_views(monkeypatch):
+    """``fill_enhanced=False``: an enhanced view is stage 2's image as it came (not blended
+    with the fill by the render's alpha, as by default); a view the guard refuses still shows
+    the filled raw render."""
+    from types import SimpleNamespace
+
+    from prosplat import enhance as enhance_module
+
+    g, cam = _half_scene()
+    raw = render(g, cam)
+    images = torch.rand(1, 3, cam.height, cam.width)
+    model = SimpleNamespace(config=SimpleNamespace(warp_input=False))
+    gentle = lambda improver, raw, *a, **k: (0.9 * raw + 0.08).clamp(0, 1)  # noqa: E731
+    monkeypatch.setattr(enhance_module, "enhance", gentle)
+    kept = render_view(g, cam, images, [cam], model, fill_holes=True, fill_enhanced=False)
+    blended = render_view(g, cam, images, [cam], model, fill_holes=True)
+    assert kept.guard is None and blended.guard is None
+    assert torch.equal(kept.image, gentle(None, raw.rgb))
+    fill = fill_colour(raw.rgb, raw.alpha)
+    torch.testing.assert_close(blended.image, raw.alpha * kept.image + (1 - raw.alpha) * fill)
+    assert (blended.image - kept.image).abs().amax() > 0.1  # the holes differ
+    monkeypatch.setattr(enhance_module, "enhance", lambda improver, raw, *a, **k: 1.0 - raw)
+    guarded = render_view(g, cam, images, [cam], model, fill_holes=True, fill_enhanced=False)
+    assert guarded.guard is not None
+    torch.testing.assert_close(guarded.image, raw.rgb + (1 - raw.alpha) * fill)
 
 
 def test_oversized_splats_are_the_ones_the_rasterizer_draws_that_wide():

@@ -252,8 +252,9 @@ def test_render_without_improver_warns_and_saves_raw(scene, tmp_path: Path, monk
 
 
 def test_render_fill_holes_shows_a_continuation_where_the_render_is_empty(scene, tmp_path):
-    """``fill_holes`` (the add-on's Fill Holes): a raw render's empty pixels get the pull-push
-    fill of its own colours instead of black; covered pixels are unchanged."""
+    """``fill_holes`` (the add-on's Fill Holes, "raw" by default): a raw render's empty pixels
+    get the pull-push fill of its own colours instead of black; covered pixels are unchanged.
+    "off" leaves them black."""
     from prosplat.enhance import MAX_SPLAT_RADIUS, oversized_splats
     from prosplat.image_io import read_image
     from prosplat.render.hole_fill import fill_holes
@@ -262,9 +263,11 @@ def test_render_fill_holes_shows_a_continuation_where_the_render_is_empty(scene,
     g = random_gaussians(30, 0)
     targets = [{"name": "v", "camera": camera_to_blender_dict(cams[0])}]
     base = {"arrays": to_attributes(g), "targets": targets, "enhance": False, "device": "cpu"}
-    plain = run_task("render", {**base, "output_dir": str(tmp_path / "plain")})
-    filled = run_task("render", {**base, "fill_holes": True, "output_dir": str(tmp_path / "f")})
-    a, b = (read_image(r["views"][0]["image"]) for r in (plain, filled))
+    plain = run_task("render", {**base, "fill_holes": "off", "output_dir": str(tmp_path / "p")})
+    filled = run_task("render", {**base, "output_dir": str(tmp_path / "f")})
+    also = run_task("render", {**base, "fill_holes": True, "output_dir": str(tmp_path / "t")})
+    a, b, c = (read_image(r["views"][0]["image"]) for r in (plain, filled, also))
+    assert torch.equal(b, c)  # "raw" (the default) and "all" (True) agree on a raw view
     out = render(g, cams[0])
     hole = out.alpha < 1e-3
     assert hole.float().mean() > 0.005  # the view has holes to fill
@@ -273,6 +276,39 @@ def test_render_fill_holes_shows_a_continuation_where_the_render_is_empty(scene,
     kept = render(g[~oversized_splats(g, cams[0], MAX_SPLAT_RADIUS)], cams[0])
     want = fill_holes(kept.rgb, kept.alpha).clamp(0, 1)
     assert torch.allclose(b, want, atol=1.5 / 255)  # the same fill, through an 8-bit PNG
+
+
+def test_fill_holes_raw_leaves_enhanced_views_as_stage_2_made_them(scene, tmp_path, monkeypatch):
+    """An enhanced view: "raw" (the default) writes stage 2's image unblended, as "off" does;
+    "all" blends it with the fill where the Gaussians leave holes. A value outside the modes
+    fails before any work, naming them. (Stage 2 is a gentle stand-in the guard lets through:
+    the shipped one may be refused, and a refused view is raw.)"""
+    from prosplat import enhance as enhance_module
+    from prosplat.image_io import read_image
+    from prosplat.pixel_gaussians import pixel_gaussians
+
+    monkeypatch.setattr(
+        enhance_module, "enhance", lambda improver, raw, *a, **k: (0.9 * raw + 0.08).clamp(0, 1)
+    )
+    folder, cams = scene
+    image = read_image(folder / "images" / "000.png")  # [3,H,W]
+    depth = torch.full(image.shape[1:], 2.0)
+    depth[:, : image.shape[-1] // 2] = 0  # view 0's right half only: the left is a hole
+    g = pixel_gaussians(image, depth, cams[0], footprint=0.7, opacity=1.0)
+    targets = [{"name": "v", "camera": camera_to_blender_dict(cams[0])}]
+    base = {"arrays": to_attributes(g), "targets": targets, "device": "cpu",
+            "inputs": _frames(folder, cams, [1, 2])}  # fmt: skip
+    views = {
+        m: run_task("render", {**base, "fill_holes": m, "output_dir": str(tmp_path / m)})
+        for m in ("off", "raw", "all")
+    }
+    assert all(v["views"][0]["enhanced"] and v["views"][0]["guard"] is None for v in views.values())
+    off, raw, full = (read_image(views[m]["views"][0]["image"]) for m in ("off", "raw", "all"))
+    assert torch.equal(off, raw)
+    assert (full - off).abs().amax() > 0.05  # the holes blended with the fill
+    with pytest.raises(ValueError, match="off, raw, all"):
+        run_task("render", {**base, "fill_holes": "some", "output_dir": str(tmp_path / "x")})
+    assert not (tmp_path / "x").exists()
 
 
 def test_cancelled_progress_stops_before_any_output(scene, tmp_path: Path) -> None:
