@@ -253,9 +253,11 @@ LPIPS {total["lpips_raw"]:.3f} → {total["lpips_enhanced"]:.3f}.
 
 A number means something only beside what is trivial and what is possible: a flat image of
 the inputs' mean colour, the input MORI picks pasted as it is, and the upper bound, Gaussians
-at Blender's true input depth (raw and enhanced). Means over the {len(result.views)} targets
-with bootstrapped 95 % intervals; *valid*: only the pixels some input sees
-(`prosplat eval ladder` runs the same rows on a test set).
+at Blender's true input depth with the holes no input saw filled as the generator's are
+(*true depth filled*; raw on black and enhanced below it). *Filled* rows show the holes as a
+continuation of the render's own colours instead of black. Means over the
+{len(result.views)} targets with bootstrapped 95 % intervals; *valid*: only the pixels some
+input sees (`prosplat eval ladder` runs the same rows on a test set).
 
 {ladder_markdown(result)}
 ## Time

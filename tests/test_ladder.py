@@ -467,14 +467,15 @@ def test_demo_report_scores_the_same_ladder(data):
 
     scene = load_scene(data / "tabletop_000001")
     entries = demo_ladder(ProSplat.from_pretrained(), scene, 64, None)
-    names = ["flat colour", "MORI paste", "generator", "enhanced", "true depth"]
-    assert [e["rung"] for e in entries] == names + ["true depth enhanced"]
+    names = ["flat colour", "MORI paste", "generator", "enhanced", "generator filled"]
+    filled = ["enhanced filled", "true depth filled", "true depth", "true depth enhanced"]
+    assert [e["rung"] for e in entries] == names + filled
     assert all(e["n"] == 4 and e["psnr_lo"] <= e["psnr"] <= e["psnr_hi"] for e in entries)
     flat = flat_image(scene.images[scene.input_indices], 64, 64)
     want = sum(float(psnr(flat, scene.images[t])) for t in scene.target_indices) / 4
     assert entries[0]["psnr"] == pytest.approx(want, abs=1e-4)
     table = ladder_markdown(SimpleNamespace(ladder=entries))
-    assert table.count("\n") == 2 + 6 and "| true depth enhanced |" in table
+    assert table.count("\n") == 2 + 9 and "| true depth filled |" in table
 
 
 def test_find_scenes_skips_half_rendered_folders(tmp_path):
