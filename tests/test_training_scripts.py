@@ -272,6 +272,33 @@ def test_stage2_v22_curates_v16as_capped_renders_of_unseen_scenes_then_fine_tune
     assert missing.returncode == 1 and "no generator runs/none.safetensors" in missing.stderr
 
 
+def test_stage2_v23_runs_v22s_recipe_from_v22_on_v17as_renders_of_unseen_scenes(
+    root: Path,
+) -> None:
+    """v23: v22's script from the shipped v22 (runs/s2v23/v22.safetensors, kept when present)
+    on generator v17a's checkpoint, into runs/s2v23; by default it asks for the scenes v17a
+    never saw (from seed 10443), so on the fake set it stops at the first missing seed."""
+    (root / "runs" / "s2v23").mkdir(parents=True)
+    (root / "runs" / "s2v23" / "v22.safetensors").write_bytes(b"")
+    (root / "runs" / "gen_v17a").mkdir()
+    (root / "runs" / "gen_v17a" / "checkpoint.safetensors").write_bytes(b"")
+    r = _run_script(root, "train_stage2_v23.sh", {"SCENES": "10000-10001"}, "7")
+    assert r.returncode == 0, r.stderr
+    lines = [line.split() for line in r.stdout.splitlines()]
+    curates = [a for a in lines if a[:2] == ["train", "curate"]]
+    assert len(curates) == 3
+    assert {_flag(a, "--generator") for a in curates} == {"runs/gen_v17a/checkpoint.safetensors"}
+    assert {_flag(a, "--data") for a in curates} == {"data/s2v23_scenes"}
+    assert all(_flag(a, "--out").startswith("runs/s2v23/sets/") for a in curates)
+    train = next(a for a in lines if a[:2] == ["train", "improve"])
+    expect = {"--init": "runs/s2v23/v22.safetensors", "--out": "runs/s2v23/run",
+              "--steps": "7", "--lr": "5e-5"}  # fmt: skip
+    assert {flag: _flag(train, flag) for flag in expect} == expect
+    assert sorted(_links(root / "data" / "s2v23_scenes")) == ["open_010000", "room_010001"]
+    default = _run_script(root, "train_stage2_v23.sh", {}, "7")
+    assert default.returncode != 0 and "no scene with seed 10443" in default.stderr
+
+
 def _run_gpu_script(cmd: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
     """A GPU script run here with its python faked (the FAKE_*PY texts below)."""
     return subprocess.run(
