@@ -317,8 +317,8 @@ def render_view(
     where the Gaussians cover the view). ``raw`` stays the render on black, which is what
     stage 2 takes. Not with a ``background``. ``fill_enhanced=False`` leaves an enhanced image
     as stage 2 made it, so the fill shows only in a raw or guarded view: the blend is level in
-    PSNR but costs LPIPS on enhanced views (BENCHMARKS "Generator v16 and stage 2 v22"), while
-    a raw view on black loses several dB.
+    PSNR but costs LPIPS on enhanced views, while a raw view on black loses 9-10 dB (BENCHMARKS
+    "Raw views filled by default").
     ``splat_scale``: the Gaussians render with their scales multiplied by it
     (:meth:`Gaussians.with_scale_factor`; ``raw``, ``alpha``, ``depth`` and stage 2's input
     are that render). :data:`SPLAT_SCALE` suits the generator's unrefined Gaussians in a filled
