@@ -457,6 +457,33 @@ def test_distill_rows_fit_the_enhanced_targets_of_the_scene(data):
     assert "--distill-steps" in messages[0]
 
 
+def test_refine_distill_rows_start_from_the_refined_gaussians(data, monkeypatch):
+    """With --refine-steps too, ``refine R distill N`` distills the Gaussians refined R steps
+    (the add-on's path when Refine Seconds and Distill Steps are both set), after the rows
+    that start from the generator."""
+    from prosplat.ladder.run import run_rungs
+
+    ctx = LadderContext({"generator_size": 32, "distill_steps": [5], "refine_steps": [3]})
+    rungs = build_rungs(["distill"], ctx)
+    assert [r.name for r in rungs] == ["distill 5", "refine 3 distill 5"]
+    asked = []
+    real = type(ctx.model).reconstruct_refined
+
+    def spy(self, *args, **kwargs):
+        asked.append(kwargs["steps"])
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(type(ctx.model), "reconstruct_refined", spy)
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    cams = [scene.cameras[scene.target_indices[0]]]
+    out = list(run_rungs(rungs, inp, cams))
+    assert asked == [3]  # the plain row never refines
+    plain, refined = out[0][2].image, out[1][2].image
+    assert not torch.equal(plain, refined)
+
+
 def test_demo_report_scores_the_same_ladder(data):
     """The demo's report table comes from the ladder code, with the demo's loaded model."""
     from types import SimpleNamespace

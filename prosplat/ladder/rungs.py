@@ -444,24 +444,35 @@ def distill_rungs(ctx: LadderContext) -> list[Rung]:
     enhanced, then the Gaussians refined against the inputs and those views for each
     ``--distill-steps`` count; rows ``distill N``: the distilled Gaussians' raw render, the
     consistent answer (enhancing it once more measured worse: BENCHMARKS "Distilled views").
-    The enhancement of every view and the refinement are timed as the reconstruction."""
+    With ``--refine-steps`` too, rows ``refine R distill N`` start from the Gaussians refined
+    R steps instead, as the add-on does when Refine Seconds and Distill Steps are both set.
+    The enhancement of every view and the refinements are timed as the reconstruction."""
     steps = [int(n) for n in ctx.options.get("distill_steps") or []]
     if not steps:
         raise SkipRung("no distillation asked for; pass --distill-steps 800")
     improver, dtype = ctx.improver("distill"), _dtype(ctx)
 
-    def make(n: int) -> Rung:
+    def make(n: int, refine: int | None) -> Rung:
         def reconstruct(inp: SceneInputs):
             from prosplat.distill import distill_enhanced
 
-            g = _generator_gaussians(ctx)(inp)
+            if refine is None:
+                g = _generator_gaussians(ctx)(inp)
+            else:
+                g = ctx.model.reconstruct_refined(
+                    inp.images, inp.cameras, inp.near, inp.far, steps=refine,
+                    budget=ctx.options.get("budget"),
+                    generator_height=ctx.options.get("generator_size"),
+                ).gaussians  # fmt: skip
             return distill_enhanced(
                 g, inp.images, inp.cameras, inp.view_cameras, improver, steps=n, dtype=dtype
             ).gaussians
 
-        return Rung(f"distill {n}", reconstruct, splat_view, depth=True, warmup=False)
+        label = f"distill {n}" if refine is None else f"refine {refine} distill {n}"
+        return Rung(label, reconstruct, splat_view, depth=True, warmup=False)
 
-    return [make(n) for n in steps]
+    refines = [int(r) for r in ctx.options.get("refine_steps") or []]
+    return [make(n, None) for n in steps] + [make(n, r) for r in refines for n in steps]
 
 
 def _true_depth(inp: SceneInputs):
