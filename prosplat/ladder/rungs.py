@@ -406,6 +406,23 @@ def warp_rungs(ctx: LadderContext) -> list[Rung]:
     return [Rung("warp paste", _generator_gaussians(ctx), warp_paste_view, "generator", depth=True)]
 
 
+def _refined_gaussians(
+    ctx: LadderContext, steps: int | None, seconds: float | None = None
+) -> Callable[[SceneInputs], Any]:
+    """The generator's Gaussians as :func:`_generator_gaussians` makes them, then refined
+    against the inputs (:mod:`prosplat.refine`, shipped options) for ``steps`` or
+    ``seconds``."""
+
+    def reconstruct(inp: SceneInputs):
+        return ctx.model.reconstruct_refined(
+            inp.images, inp.cameras, inp.near, inp.far, steps=steps, seconds=seconds,
+            budget=ctx.options.get("budget"),
+            generator_height=ctx.options.get("generator_size"),
+        ).gaussians  # fmt: skip
+
+    return reconstruct
+
+
 @register("refine")
 def refine_rungs(ctx: LadderContext) -> list[Rung]:
     """The generator's Gaussians refined against the inputs (:mod:`prosplat.refine`, shipped
@@ -420,13 +437,7 @@ def refine_rungs(ctx: LadderContext) -> list[Rung]:
     improvers, dtype = ctx.improvers("refine enhanced"), _dtype(ctx)
 
     def make(label: str, n: int | None, sec: float | None) -> list[Rung]:
-        def reconstruct(inp: SceneInputs):
-            return ctx.model.reconstruct_refined(
-                inp.images, inp.cameras, inp.near, inp.far, steps=n, seconds=sec,
-                budget=ctx.options.get("budget"),
-                generator_height=ctx.options.get("generator_size"),
-            ).gaussians  # fmt: skip
-
+        reconstruct = _refined_gaussians(ctx, n, sec)
         raw = Rung(label, reconstruct, splat_view, label, depth=True, warmup=False)
         return [raw] + [
             Rung(f"{label} enhanced{suffix}", reconstruct, _enhanced_view(imp, dtype), label,
@@ -453,17 +464,12 @@ def distill_rungs(ctx: LadderContext) -> list[Rung]:
     improver, dtype = ctx.improver("distill"), _dtype(ctx)
 
     def make(n: int, refine: int | None) -> Rung:
+        start = _generator_gaussians(ctx) if refine is None else _refined_gaussians(ctx, refine)
+
         def reconstruct(inp: SceneInputs):
             from prosplat.distill import distill_enhanced
 
-            if refine is None:
-                g = _generator_gaussians(ctx)(inp)
-            else:
-                g = ctx.model.reconstruct_refined(
-                    inp.images, inp.cameras, inp.near, inp.far, steps=refine,
-                    budget=ctx.options.get("budget"),
-                    generator_height=ctx.options.get("generator_size"),
-                ).gaussians  # fmt: skip
+            g = start(inp)
             return distill_enhanced(
                 g, inp.images, inp.cameras, inp.view_cameras, improver, steps=n, dtype=dtype
             ).gaussians
