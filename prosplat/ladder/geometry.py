@@ -24,7 +24,8 @@ from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 from prosplat.pixel_gaussians import pixel_gaussians
 
-#: a true-depth Gaussian's standard deviation in units of its pixel's footprint (depth / fx).
+#: a true-depth Gaussian's standard deviation in units of its pixel's footprint
+#: (depth / min(fx, fy), :func:`prosplat.pixel_gaussians.pixel_gaussians`).
 #: Small enough not to smear the input's own view (the rasterizer adds 0.3 px² anyway), large
 #: enough to close gaps where a target sees a surface closer than an input did. Measured on
 #: two test scenes at 64 px (valid-region PSNR over the targets, open / room): 0.2 → 20.3 /

@@ -377,7 +377,7 @@ def task_render(params: dict, progress: Progress) -> dict:
     targets = params.get("targets") or []
     if not targets:
         raise ValueError("no cameras to render; select a camera or set an active one")
-    fill_mode(params.get("fill_holes"))  # a bad value fails before any work
+    params = {**params, "fill_holes": fill_mode(params.get("fill_holes"))}  # fails before work
     frames = params.get("inputs") or []
     for fr in frames:
         if fr.get("image") and Path(fr["image"]).resolve().parent == out_dir.resolve():
@@ -446,7 +446,7 @@ def _render_and_save(model, g, cam, images, in_cams, enhance, params, progress, 
     """One view: render (raw if enhancement fails), write its files, say what was written."""
     from prosplat.image_io import write_depth, write_image
 
-    fill = fill_mode(params.get("fill_holes"))
+    fill = params["fill_holes"]  # one of FILL_MODES: task_render parsed it
     try:
         v = _render_one(model, g, cam, images, in_cams, enhance, fill)
     except ValueError as e:
