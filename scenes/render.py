@@ -35,6 +35,13 @@ from prosplat.data.splits import split_of
 from prosplat.image_io import write_depth
 from scenes.builders import SceneInfo, build_scene
 
+#: Cycles' denoiser settings by name: (prefilter of the albedo and normal passes, OIDN quality).
+#: "high" is Blender's default. "fast" skips the auxiliary passes' own denoising and runs OIDN's
+#: balanced network: the colour render of a 128-px training view takes 0.65-0.8x the time, and
+#: the image stays 30-38 dB from a 256-sample render, 0.2-0.7 dB below "high" (BENCHMARKS.md
+#: "Scene rendering"), far above the error any model here learns from.
+DENOISE_QUALITY = {"high": ("ACCURATE", "HIGH"), "fast": ("FAST", "BALANCED")}
+
 BACKGROUND_DEPTH = 1e9  # Cycles writes ~1e10 where a ray hits nothing; we store 0 there
 SKY_UP = (0.0, 0.0, 1.0)
 
@@ -43,14 +50,20 @@ def scene_folder_name(name: str, seed: int) -> str:
     return f"{name}_{seed:06d}"
 
 
-def configure_render(size: int, samples: int, denoise: bool, seed: int, threads: int) -> None:
-    """Cycles on the CPU, plain sRGB output (Standard view transform, no dither), Z pass."""
+def configure_render(
+    size: int, samples: int, denoise: bool, seed: int, threads: int, denoise_quality: str = "high"
+) -> None:
+    """Cycles on the CPU, plain sRGB output (Standard view transform, no dither), Z pass;
+    ``denoise_quality`` names the denoiser's settings (:data:`DENOISE_QUALITY`)."""
+    if denoise_quality not in DENOISE_QUALITY:
+        raise ValueError(f"denoise_quality {denoise_quality!r}: one of {sorted(DENOISE_QUALITY)}")
     sc = bpy.context.scene
     sc.render.engine = "CYCLES"
     sc.cycles.device = "CPU"
     sc.cycles.samples = samples
     sc.cycles.use_adaptive_sampling = False  # a fixed sample count: same seed, same pixels
     sc.cycles.use_denoising = denoise
+    sc.cycles.denoising_prefilter, sc.cycles.denoising_quality = DENOISE_QUALITY[denoise_quality]
     sc.cycles.seed = seed
     sc.cycles.pixel_filter_type = "BOX"  # width set per pass in _render_view
     sc.render.resolution_x = sc.render.resolution_y = size
@@ -151,6 +164,7 @@ def render_scene(
     samples: int = 32,
     denoise: bool = False,
     threads: int | None = None,
+    denoise_quality: str = "high",
     lens_mm: float | None = None,
     progress: bool = False,
     blend: Path | None = None,
@@ -176,7 +190,9 @@ def render_scene(
         info: SceneInfo = build_scene(name, seed)
         build_seconds = time.perf_counter() - t0
         rig = choose_rig(info.trajectory, n_inputs, n_targets, seed)
-        configure_render(size, samples, denoise, seed, threads or os.cpu_count() or 1)
+        configure_render(
+            size, samples, denoise, seed, threads or os.cpu_count() or 1, denoise_quality
+        )
         sc = bpy.context.scene
         cam_obj = bpy.data.objects.new("prosplat_camera", bpy.data.cameras.new("prosplat_camera"))
         sc.collection.objects.link(cam_obj)
@@ -234,6 +250,7 @@ def render_scene(
                 "device": "CPU",
                 "samples": samples,
                 "denoise": denoise,
+                "denoise_quality": denoise_quality if denoise else None,
                 "pixel_filter": "BOX 1px (colour), 0.01px (depth)",
                 "view_transform": "Standard",
                 "seconds": round(time.perf_counter() - t0, 2),
@@ -285,6 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--targets", type=int, default=8)
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--denoise", action="store_true")
+    ap.add_argument("--denoise-quality", choices=sorted(DENOISE_QUALITY), default="high")
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--progress", action="store_true", help="print PROSPLAT_PROGRESS lines")
     ap.add_argument("--blend", type=Path, default=None, help="also save the scene as a .blend")
@@ -301,6 +319,7 @@ def main(argv: list[str] | None = None) -> int:
             args.samples,
             args.denoise,
             args.threads,
+            denoise_quality=args.denoise_quality,
             progress=args.progress,
             blend=args.blend,
         )

@@ -12,7 +12,10 @@
 # (BENCHMARKS "Scene rendering"), 8 samples + denoiser give 29-37 dB and 16 + denoiser 31-39
 # dB at 0.6x the time per view; every model here is below 21 dB, so the noise left is far
 # below the error it learns from. Scenes rendered before 2026-11-24 used 16 (the scene's
-# transforms.json records its samples).
+# transforms.json records its samples). Training scenes use the denoiser's fast settings
+# (DENOISE_QUALITY=fast, the default for train; high for eval and test, as those sets were
+# rendered): 0.65-0.8x the colour render's time, 0.2-0.7 dB from high at 30-38 dB (BENCHMARKS
+# "Scene rendering"). Older training scenes used high; each transforms.json records which.
 # Usage: scripts/render_v2_data.sh eval|test|train [ROUNDS]  (eval: val128, test128 and
 # test256; test: test128 and test256 only; train: ROUNDS rounds, default 40 = 2,880 scenes).
 # The parts can run at once (WORKERS=1 each).
@@ -45,6 +48,7 @@ hard_tests 256 data/test256
 exit 0
 fi
 [ "$part" = train ] || { echo "render_v2_data.sh: unknown part $part (eval, test, train)" >&2; exit 1; }
+R="$R --denoise-quality ${DENOISE_QUALITY:-fast}"
 for round in $(seq 0 $((${2:-40} - 1))); do
   $R --seed $((10000 + 60 * round)) --count 60 --size 128 --inputs 6 --targets 10 --out data/train128
   i=0

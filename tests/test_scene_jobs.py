@@ -42,3 +42,24 @@ def test_the_worker_command_shares_the_cores_unless_threads_is_given(monkeypatch
     assert threads_of("--workers", "2", "--threads", "1") == 1
     bad = build_parser().parse_args(["scenes", "render", "--out", str(tmp_path), "--threads", "0"])
     assert cmd_scenes_render(bad) == 2  # refused before any Blender starts
+
+
+def test_the_worker_command_carries_the_denoiser_setting(tmp_path):
+    """--denoise-quality reaches the worker's command line with --denoise; without --denoise a
+    setting other than the default is refused before any Blender starts."""
+    from prosplat.cli import build_parser, cmd_scenes_render, render_worker_command
+
+    def command(*extra: str) -> list[str]:
+        args = build_parser().parse_args(["scenes", "render", "--out", str(tmp_path), *extra])
+        return render_worker_command(args)
+
+    cmd = command("--denoise", "--denoise-quality", "fast")
+    assert cmd[cmd.index("--denoise-quality") + 1] == "fast" and "--denoise" in cmd
+    cmd = command("--denoise")
+    assert cmd[cmd.index("--denoise-quality") + 1] == "high"
+    assert "--denoise" not in command() and "--denoise-quality" not in command()
+    out = tmp_path / "never"
+    bad = build_parser().parse_args(
+        ["scenes", "render", "--out", str(out), "--denoise-quality", "fast"]
+    )
+    assert cmd_scenes_render(bad) == 2 and not out.exists()

@@ -224,6 +224,23 @@ def test_one_worker_renders_scene_after_scene_as_fresh_processes_do(tmp_path):
     assert torch.equal(a.depths, b.depths)
 
 
+def test_fast_denoiser_is_used_recorded_and_close_to_the_default(tmp_path):
+    """--denoise-quality fast reaches Cycles (the colour differs from the default denoiser's),
+    is recorded in transforms.json, leaves depth alone and stays close to the default's image."""
+    args = ("--seed", "2", "--count", "1", "--workers", "1", "--denoise")
+    res = _cli_render(tmp_path / "high", *args)
+    assert res.returncode == 0, res.stderr[-3000:]
+    res = _cli_render(tmp_path / "fast", *args, "--denoise-quality", "fast")
+    assert res.returncode == 0, res.stderr[-3000:]
+    a, b = (load_scene(tmp_path / q / "open_000002") for q in ("high", "fast"))
+    assert a.meta["renderer"]["denoise_quality"] == "high"
+    assert b.meta["renderer"]["denoise_quality"] == "fast"
+    assert torch.equal(a.depths, b.depths)
+    assert (a.images - b.images).abs().max() > 2 / 255
+    psnr = -10 * torch.log10(F.mse_loss(a.images, b.images))
+    assert psnr > 25, psnr
+
+
 def test_a_failing_scene_is_reported_and_the_worker_goes_on(tmp_path):
     """Every failing scene is named with its error and counted; the run exits 1, writes no
     folder for it, and a worker that fails one scene still takes the next."""
