@@ -464,11 +464,11 @@ def build_parser() -> argparse.ArgumentParser:
     rend.add_argument("--denoise", action="store_true", help="run Cycles' denoiser (default off)")
     rend.add_argument(
         "--denoise-quality",
-        choices=("high", "fast"),
+        choices=("high", "fast"),  # scenes.render.DENOISE_QUALITY's names (that module needs bpy)
         default="high",
         help="the denoiser's settings (with --denoise): high (Blender's default) or fast "
-        "(no prefiltered albedo/normal passes, OIDN's balanced network: 0.65-0.8x the colour "
-        "render's time, 0.2-0.7 dB from high; for training data)",
+        "(no prefiltered albedo/normal passes, OIDN's balanced network: 0.7-0.8x the colour "
+        "render's time, 0.1-0.9 dB from high; for training data)",
     )
     rend.add_argument(
         "--workers", type=int, default=2, help="parallel Blender processes (default 2)"

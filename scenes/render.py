@@ -37,8 +37,8 @@ from scenes.builders import SceneInfo, build_scene
 
 #: Cycles' denoiser settings by name: (prefilter of the albedo and normal passes, OIDN quality).
 #: "high" is Blender's default. "fast" skips the auxiliary passes' own denoising and runs OIDN's
-#: balanced network: the colour render of a 128-px training view takes 0.65-0.8x the time, and
-#: the image stays 30-38 dB from a 256-sample render, 0.2-0.7 dB below "high" (BENCHMARKS.md
+#: balanced network: the colour render of a 128-px training view takes 0.7-0.8x the time, and
+#: the image stays 30-38 dB from a 256-sample render, 0.1-0.9 dB below "high" (BENCHMARKS.md
 #: "Scene rendering"), far above the error any model here learns from.
 DENOISE_QUALITY = {"high": ("ACCURATE", "HIGH"), "fast": ("FAST", "BALANCED")}
 
