@@ -2,7 +2,8 @@
 # The next model step end to end, on the CPU, unattended over hours and sessions: every stage
 # skips what is already done, so re-running the same command goes on where it stopped.
 #   1. training data: render rounds 0-6 of data/train128 (scripts/render_v2_data.sh train 7,
-#      WORKERS=2, about 2 hours for 504 scenes on an idle 2-core AMD EPYC);
+#      WORKERS=2: 527 scenes, about 245 an hour on an idle 2-core AMD EPYC with the fast
+#      denoiser, so 2.2 hours from none);
 #   2. generator v17a: scripts/train_generator_v17.sh (v16 + 3,500 steps of its recipe on
 #      rounds 0-6, one thread, about 70 min) while one worker renders rounds 7-11;
 #   3. v17a's checks beside the shipped pair (scripts/eval_generator.sh v17a ... ladder depth);
