@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The next model step end to end, on the CPU, unattended over hours and sessions: every stage
 # skips what is already done, so re-running the same command goes on where it stopped.
-#   1. training data: render rounds 0-6 of data/train128 (scripts/render_v2_data.sh train 7,
-#      WORKERS=2: 527 scenes, about 245 an hour on an idle 2-core AMD EPYC with the fast
-#      denoiser, so 2.2 hours from none);
+#   1. training data: render rounds 0-7 of data/train128 (scripts/render_v2_data.sh train 8,
+#      WORKERS=2: 576 scenes, about 245 an hour on an idle 2-core AMD EPYC with the fast
+#      denoiser, so 2.4 hours from none). v17a's scenes are rounds 0-6 and round 7's first
+#      23 family seeds (10420-10442), so its subset exists only once round 7 is rendered;
 #   2. generator v17a: scripts/train_generator_v17.sh (v16 + 3,500 steps of its recipe on
-#      rounds 0-6, one thread, about 70 min) while one worker renders rounds 7-11;
+#      those 527 scenes, one thread, about 70 min) while one worker renders rounds 8-11;
 #   3. v17a's checks beside the shipped pair (scripts/eval_generator.sh v17a ... ladder depth);
 #   4. stage 2 v23 on v17a's renders of rounds 7-11 (scripts/train_stage2_v23.sh 2000);
 #   5. the pair on the test ladder with v22 on the same reconstructions
@@ -19,10 +20,10 @@ P=${PROSPLAT:-.venv/bin/prosplat}
 mkdir -p logs
 GEN=runs/gen_v17a/checkpoint.safetensors
 say() { echo "[$(date +%H:%M)] next_models: $*"; }
-say "1. rendering rounds 0-6"
-nice -n 19 env WORKERS="${WORKERS:-2}" THREADS=1 scripts/render_v2_data.sh train 7 \
+say "1. rendering rounds 0-7"
+nice -n 19 env WORKERS="${WORKERS:-2}" THREADS=1 scripts/render_v2_data.sh train 8 \
   >> logs/next_models_render.log 2>&1
-say "2. generator v17a, rounds 7-11 rendering beside it"
+say "2. generator v17a, rounds 8-11 rendering beside it"
 nice -n 19 env WORKERS=1 THREADS=1 scripts/render_v2_data.sh train 12 \
   >> logs/next_models_render.log 2>&1 &
 render=$!
