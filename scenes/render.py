@@ -39,7 +39,7 @@ from scenes.builders import SceneInfo, build_scene
 #: "high" is Blender's default. "fast" skips the auxiliary passes' own denoising and runs OIDN's
 #: balanced network: the colour render of a 128-px training view takes 0.7-0.8x the time, and
 #: the image stays 30-38 dB from a 256-sample render, 0.1-0.9 dB below "high" (BENCHMARKS.md
-#: "Scene rendering"), far above the error any model here learns from.
+#: "Faster training renders"), far above the error any model here learns from.
 DENOISE_QUALITY = {"high": ("ACCURATE", "HIGH"), "fast": ("FAST", "BALANCED")}
 
 BACKGROUND_DEPTH = 1e9  # Cycles writes ~1e10 where a ray hits nothing; we store 0 there

@@ -15,7 +15,7 @@
 # transforms.json records its samples). Training scenes use the denoiser's fast settings
 # (DENOISE_QUALITY=fast, the default for train; high for eval and test, as those sets were
 # rendered): 0.7-0.8x the colour render's time, 0.1-0.9 dB from high at 30-38 dB (BENCHMARKS
-# "Scene rendering"). Older training scenes used high; each transforms.json records which.
+# "Faster training renders"). Older training scenes used high; transforms.json records which.
 # Usage: scripts/render_v2_data.sh eval|test|train [ROUNDS]  (eval: val128, test128 and
 # test256; test: test128 and test256 only; train: ROUNDS rounds, default 40 = 2,880 scenes).
 # The parts can run at once (WORKERS=1 each).
