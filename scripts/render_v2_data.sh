@@ -49,12 +49,24 @@ exit 0
 fi
 [ "$part" = train ] || { echo "render_v2_data.sh: unknown part $part (eval, test, train)" >&2; exit 1; }
 R="$R --denoise-quality ${DENOISE_QUALITY:-fast}"
+# A finished round is passed over here, without starting prosplat (which takes seconds to
+# import torch, a minute or more a round on a busy machine): every scene folder of
+# data/train128 ends in its seed, and train seeds are unique across families and hard scenes.
+rendered() {  # FIRST COUNT: is there a folder for every seed FIRST..FIRST+COUNT-1?
+  local seed
+  for seed in $(seq "$1" $(($1 + $2 - 1))); do
+    compgen -G "data/train128/*_$(printf %06d "$seed")" > /dev/null || return 1
+  done
+}
 for round in $(seq 0 $((${2:-40} - 1))); do
-  $R --seed $((10000 + 60 * round)) --count 60 --size 128 --inputs 6 --targets 10 --out data/train128
+  first=$((10000 + 60 * round))
+  rendered $first 60 ||
+    $R --seed $first --count 60 --size 128 --inputs 6 --targets 10 --out data/train128
   i=0
   for s in $HARD; do
-    $R --seed $((20000 + 100 * i + 2 * round)) --count 2 --scene $s --size 128 --inputs 6 \
-      --targets 10 --out data/train128
+    first=$((20000 + 100 * i + 2 * round))
+    rendered $first 2 ||
+      $R --seed $first --count 2 --scene $s --size 128 --inputs 6 --targets 10 --out data/train128
     i=$((i + 1))
   done
 done
