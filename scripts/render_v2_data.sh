@@ -50,12 +50,12 @@ fi
 [ "$part" = train ] || { echo "render_v2_data.sh: unknown part $part (eval, test, train)" >&2; exit 1; }
 R="$R --denoise-quality ${DENOISE_QUALITY:-fast}"
 # A finished round is passed over here, without starting prosplat (which takes seconds to
-# import torch, a minute or more a round on a busy machine): every scene folder of
-# data/train128 ends in its seed, and train seeds are unique across families and hard scenes.
-rendered() {  # FIRST COUNT: is there a folder for every seed FIRST..FIRST+COUNT-1?
+# import torch, a minute or more a round on a busy machine).
+. scripts/scene_subset.sh
+rendered() {  # FIRST COUNT: is there a scene for every seed FIRST..FIRST+COUNT-1?
   local seed
   for seed in $(seq "$1" $(($1 + $2 - 1))); do
-    compgen -G "data/train128/*_$(printf %06d "$seed")" > /dev/null || return 1
+    train_scene "$seed" > /dev/null || return 1
   done
 }
 for round in $(seq 0 $((${2:-40} - 1))); do

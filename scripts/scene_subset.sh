@@ -11,8 +11,7 @@ scene_subset() {
   for range in $2; do
     first=${range%-*} last=${range#*-}
     for seed in $(seq "$first" "$last"); do
-      found=$(compgen -G "data/train128/*_$(printf %06d "$seed")" || true)
-      [ -n "$found" ] || {
+      found=$(train_scene "$seed") || {
         echo "scene_subset: no scene with seed $seed in data/train128" >&2
         rm -rf "$tmp"
         return 1
@@ -25,6 +24,13 @@ scene_subset() {
   else
     rm -rf "$dest" && mv -T "$tmp" "$dest"
   fi
+}
+
+# The folder of data/train128's scene with this seed (every folder name ends in its seed, and
+# train seeds are unique across families and hard scenes); fails when there is none.
+#   train_scene SEED
+train_scene() {
+  compgen -G "data/train128/*_$(printf %06d "$1")"
 }
 
 # name -> target, one line a link, sorted: what scene_subset compares.
