@@ -85,7 +85,8 @@ def main() -> None:
                 eye, look = info.trajectory[view]
                 R._place_camera(cam, Camera.look_at(eye, look, R.SKY_UP, fx, args.size, args.size))
                 sc.cycles.samples = args.reference_samples
-                sc.cycles.denoising_prefilter, sc.cycles.denoising_quality = "ACCURATE", "HIGH"
+                prefilter_quality = R.DENOISE_QUALITY["high"]  # the default denoiser
+                sc.cycles.denoising_prefilter, sc.cycles.denoising_quality = prefilter_quality
                 ref = colour(png, args.size)
                 sc.cycles.samples = args.samples
                 for rep in range(args.repeats):

@@ -34,6 +34,37 @@ def render_args(denoiser: str) -> list[str]:
     return [] if denoiser == "none" else ["--denoise", "--denoise-quality", denoiser]
 
 
+def render(args: argparse.Namespace, size: int, denoiser: str, out: Path) -> None:
+    """The benchmark's three scenes at ``size`` with ``denoiser``, into ``out``."""
+    cmd = [sys.executable, "-m", "prosplat", "scenes", "render"]
+    cmd += ["--seed", str(args.seed), "--count", "3", "--out", str(out)]
+    cmd += ["--size", str(size), "--samples", str(args.samples), "--workers", "1"]
+    cmd += ["--inputs", str(args.inputs), "--targets", str(args.targets)]
+    cmd += ["--threads", str(args.threads)] if args.threads else []
+    subprocess.run(cmd + render_args(denoiser), check=True)
+
+
+def scene_rows(data: Path, **labels) -> list[dict]:
+    """One row per scene folder of ``data``: its timings (from transforms.json) and size."""
+    rows = []
+    for folder in sorted(data.iterdir()):
+        meta = json.loads((folder / "transforms.json").read_text())
+        r = meta["renderer"]
+        rows.append(
+            dict(
+                **labels,
+                scene=folder.name,
+                views=len(r["view_seconds"]),
+                s_per_view=statistics.median(r["view_seconds"]),
+                build_s=r["build_seconds"],
+                total_s=r["seconds"],
+                mb=folder_bytes(folder) / 2**20,
+                overlap=meta["mean_input_overlap"],
+            )
+        )
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -60,29 +91,8 @@ def main() -> None:
             for rnd in range(args.repeats):
                 for denoiser in args.denoiser:
                     data = Path(tmp) / f"s{size}_r{rnd}_{denoiser}"
-                    cmd = [sys.executable, "-m", "prosplat", "scenes", "render"]
-                    cmd += ["--seed", str(args.seed), "--count", "3", "--out", str(data)]
-                    cmd += ["--size", str(size), "--samples", str(args.samples), "--workers", "1"]
-                    cmd += ["--inputs", str(args.inputs), "--targets", str(args.targets)]
-                    cmd += ["--threads", str(args.threads)] if args.threads else []
-                    subprocess.run(cmd + render_args(denoiser), check=True)
-                    for folder in sorted(data.iterdir()):
-                        meta = json.loads((folder / "transforms.json").read_text())
-                        r = meta["renderer"]
-                        rows.append(
-                            dict(
-                                size=size,
-                                round=rnd,
-                                denoiser=denoiser,
-                                scene=folder.name,
-                                views=len(r["view_seconds"]),
-                                s_per_view=statistics.median(r["view_seconds"]),
-                                build_s=r["build_seconds"],
-                                total_s=r["seconds"],
-                                mb=folder_bytes(folder) / 2**20,
-                                overlap=meta["mean_input_overlap"],
-                            )
-                        )
+                    render(args, size, denoiser, data)
+                    rows += scene_rows(data, size=size, round=rnd, denoiser=denoiser)
     views = args.inputs + args.targets
     print(f"\nCycles CPU, {args.samples} samples, {views} views per scene\n")
     print(
