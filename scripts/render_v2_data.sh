@@ -16,8 +16,9 @@
 # (DENOISE_QUALITY=fast, the default for train; high for eval and test, as those sets were
 # rendered): 0.7-0.8x the colour render's time, 0.1-0.9 dB from high at 30-38 dB (BENCHMARKS
 # "Faster training renders"). Older training scenes used high; transforms.json records which.
-# Usage: scripts/render_v2_data.sh eval|test|train [ROUNDS]  (eval: val128, test128 and
-# test256; test: test128 and test256 only; train: ROUNDS rounds, default 40 = 2,880 scenes).
+# Usage: scripts/render_v2_data.sh eval|test|train [ROUNDS [FIRST]]  (eval: val128, test128
+# and test256; test: test128 and test256 only; train: rounds FIRST..ROUNDS-1, default 0..39 =
+# 2,880 scenes; e.g. `train 9 7` renders rounds 7 and 8 only).
 # The parts can run at once (WORKERS=1 each).
 # THREADS=N: Cycles threads per worker (default: the cores / WORKERS), e.g. 1 beside a
 # one-thread training run.
@@ -27,7 +28,7 @@ P=${PROSPLAT:-.venv/bin/prosplat}
 SAMPLES=${SAMPLES:-8}
 HARD="textureless specular near_far thin_structures repeated_pattern inside_outside"
 R="$P scenes render --samples $SAMPLES --denoise --workers ${WORKERS:-2} ${THREADS:+--threads $THREADS}"
-part=${1:?usage: render_v2_data.sh eval|test|train [ROUNDS]}
+part=${1:?usage: render_v2_data.sh eval|test|train [ROUNDS [FIRST]]}
 hard_tests() {  # SIZE OUT: the 6 hard test scenes, seeds 950100-5
   local seed=950100 s
   for s in $HARD; do
@@ -58,7 +59,7 @@ rendered() {  # FIRST COUNT: is there a scene for every seed FIRST..FIRST+COUNT-
     train_scene "$seed" > /dev/null || return 1
   done
 }
-for round in $(seq 0 $((${2:-40} - 1))); do
+for round in $(seq "${3:-0}" $((${2:-40} - 1))); do
   first=$((10000 + 60 * round))
   rendered $first 60 ||
     $R --seed $first --count 60 --size 128 --inputs 6 --targets 10 --out data/train128

@@ -9,7 +9,8 @@
 #      of render rounds 5-6; SCENES= other seed ranges);
 #   2. raw64 (2/4 inputs), raw128 (4) and ref64 (2/4, the generator's Gaussians refined 100
 #      steps by prosplat.refine) curated with GEN (default runs/generator_v16a.safetensors)
-#      at up to 128 px, as the pipeline runs it: two processes of one thread;
+#      at up to 128 px, as the pipeline runs it: two processes of one thread, each taking
+#      every second set (SPECS= other sets, NAME:VIEWS:SIZE:REFINE_STEPS each);
 #   3. v19 + STEPS steps with v19's recipe (warp, alpha, fill, 48-px crops, flips, the
 #      sub-pixel shift term, LPIPS 0.1, working size 256) at batch 8 and lr 5e-5 (stage 2
 #      v20's CPU fine-tune), seed 22.
@@ -29,18 +30,27 @@ INIT=${INIT:-runs/s2v22/v19.safetensors}
 shipped_before "$INIT" improve_tiny.safetensors 0401317  # stage 2 v19
 . scripts/scene_subset.sh
 scene_subset "$SUBSET" "${SCENES:-10360-10442 $(hard_rounds 7 5)}"
+read -r -a specs <<< "${SPECS:-raw64:2,4:64:0 raw128:4:128:0 ref64:2,4:64:100}"
 mkdir -p "$SETS"
-curate() {  # NAME VIEWS SIZE REFINE_STEPS
-  [ -f "$SETS/$1.safetensors" ] || OMP_NUM_THREADS=1 $P train curate --data "$SUBSET" \
-    --out "$SETS/$1.safetensors" --generator "$GEN" --generator-size 128 --views "$2" \
-    --size "$3" --refine-steps "$4"
+curate() {  # NAME:VIEWS:SIZE:REFINE_STEPS ...: each set in turn, kept when present
+  local spec name views size steps
+  for spec in "$@"; do
+    IFS=: read -r name views size steps <<< "$spec"
+    [ -f "$SETS/$name.safetensors" ] || OMP_NUM_THREADS=1 $P train curate --data "$SUBSET" \
+      --out "$SETS/$name.safetensors" --generator "$GEN" --generator-size 128 \
+      --views "$views" --size "$size" --refine-steps "$steps" || return 1
+  done
 }
-(curate raw64 2,4 64 0 && curate raw128 4 128 0) &
+even=() odd=() data=()
+for i in "${!specs[@]}"; do
+  if ((i % 2)); then odd+=("${specs[$i]}"); else even+=("${specs[$i]}"); fi
+  data+=("$SETS/${specs[$i]%%:*}.safetensors")
+done
+curate "${odd[@]}" &
 pid=$!
-curate ref64 2,4 64 100
+curate "${even[@]}"
 wait "$pid"  # a failed curation stops the run here
-OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train improve \
-  --data "$SETS/raw64.safetensors,$SETS/raw128.safetensors,$SETS/ref64.safetensors" \
+OMP_NUM_THREADS=${OMP_NUM_THREADS:-2} $P train improve --data "$(IFS=,; echo "${data[*]}")" \
   --out "$OUT" --init "$INIT" --warp --padding replicate --alpha --fill --crop 48 --flip \
   --steps "${1:-2000}" --batch 8 --lr 5e-5 --warmup 100 --lpips-weight 0.1 --shift-weight 10 \
   --subpixel-shift --working-size 256 --seed 22 --save-every 100 --log-every 50

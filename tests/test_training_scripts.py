@@ -299,6 +299,54 @@ def test_stage2_v23_runs_v22s_recipe_from_v22_on_v17as_renders_of_unseen_scenes(
     assert default.returncode != 0 and "no scene with seed 10443" in default.stderr
 
 
+def test_stage2_v24_adds_refined_128px_renders_of_unseen_scenes_to_v22s_sets(
+    root: Path,
+) -> None:
+    """v24: v22's script from the shipped v22 on the shipped v16 (both taken from git
+    history into runs/s2v24, kept when present) with a fourth set, ref128 (4 inputs, refined
+    100 steps at 128 px); the two curation processes share the four sets and training takes
+    all four in order. By default it asks for seeds from 10443 (neither model saw them)."""
+    (root / "runs" / "s2v24").mkdir(parents=True)
+    for name in ("v22", "v16"):
+        (root / "runs" / "s2v24" / f"{name}.safetensors").write_bytes(b"")
+    r = _run_script(root, "train_stage2_v24.sh", {"SCENES": "10000-10001"}, "7")
+    assert r.returncode == 0, r.stderr
+    lines = [line.split() for line in r.stdout.splitlines()]
+    curates = {_flag(a, "--out"): a for a in lines if a[:2] == ["train", "curate"]}
+    names = ("raw64", "raw128", "ref64", "ref128")
+    sets = [f"runs/s2v24/sets/{name}.safetensors" for name in names]
+    assert sorted(curates) == sorted(sets)
+    expect = {  # views, size, refine steps
+        "raw64": ("2,4", "64", "0"), "raw128": ("4", "128", "0"),
+        "ref64": ("2,4", "64", "100"), "ref128": ("4", "128", "100"),
+    }  # fmt: skip
+    for name, path in zip(names, sets, strict=True):
+        a = curates[path]
+        assert (_flag(a, "--views"), _flag(a, "--size"), _flag(a, "--refine-steps")) == expect[name]
+        assert _flag(a, "--generator") == "runs/s2v24/v16.safetensors"
+        assert _flag(a, "--data") == "data/s2v24_scenes"
+    train = next(a for a in lines if a[:2] == ["train", "improve"])
+    assert _flag(train, "--data").split(",") == sets
+    assert _flag(train, "--init") == "runs/s2v24/v22.safetensors"
+    assert _flag(train, "--out") == "runs/s2v24/run" and _flag(train, "--steps") == "7"
+    default = _run_script(root, "train_stage2_v24.sh", {}, "7")
+    assert default.returncode != 0 and "no scene with seed 10443" in default.stderr
+
+
+def test_render_v2_data_train_renders_only_the_rounds_asked_for(root: Path) -> None:
+    """`render_v2_data.sh train 9 7` starts prosplat for rounds 7 and 8 only: 60 family seeds
+    from 10000 + 60·round and two seeds of each hard scene from 20000 + 100·kind + 2·round."""
+    r = _run_script(root, "render_v2_data.sh", {}, "train", "9", "7")
+    assert r.returncode == 0, r.stderr
+    calls = [line.split() for line in r.stdout.splitlines()]
+    assert all(a[:2] == ["scenes", "render"] for a in calls)
+    family = [(_flag(a, "--seed"), _flag(a, "--count")) for a in calls if "--scene" not in a]
+    assert family == [("10420", "60"), ("10480", "60")]
+    hard = sorted(int(_flag(a, "--seed")) for a in calls if "--scene" in a)
+    assert hard == sorted(20000 + 100 * k + 2 * r for k in range(6) for r in (7, 8))
+    assert {_flag(a, "--denoise-quality") for a in calls} == {"fast"}
+
+
 def _run_gpu_script(cmd: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
     """A GPU script run here with its python faked (the FAKE_*PY texts below)."""
     return subprocess.run(
