@@ -170,6 +170,28 @@ def test_generator_v17_goes_on_from_v16_with_its_fill_recipe(root: Path) -> None
     assert default.returncode != 0 and "no scene with seed 10003" in default.stderr
 
 
+def test_generator_v17b_runs_v17s_recipe_on_rounds_7_and_8_only(root: Path) -> None:
+    """v17b: v17's script (from the shipped v16, v16's flags) into runs/gen_v17b, batch seed
+    14, on two threads; by default it asks for rounds 7-8 only (from seed 10420), so on the
+    fake set it stops at that first missing seed, not at any seed of rounds 0-6."""
+    (root / "runs").mkdir(exist_ok=True)
+    (root / "runs" / "generator_v16.safetensors").write_bytes(b"")
+    fake_echo = root / "echo_threads"
+    fake_echo.write_text('#!/usr/bin/env bash\necho "OMP=$OMP_NUM_THREADS $*"\n')
+    fake_echo.chmod(0o755)
+    env = {"SCENES": "10000-10001", "SUBSET": "data/sub17b", "PROSPLAT": str(fake_echo)}
+    r = _run_script(root, "train_generator_v17b.sh", env, "12")
+    assert r.returncode == 0, r.stderr
+    args = r.stdout.split()
+    expect = {"--init": "runs/generator_v16.safetensors", "--out": "runs/gen_v17b",
+              "--seed": "14", "--steps": "12", "--data": "data/sub17b",
+              "--input-render-weight": "2"}  # fmt: skip
+    assert {flag: _flag(args, flag) for flag in expect} == expect
+    assert "--fill-holes" in args and args[0] == "OMP=2"
+    default = _run_script(root, "train_generator_v17b.sh", {}, "12")
+    assert default.returncode != 0 and "no scene with seed 10420" in default.stderr
+
+
 def test_generator_v9_starts_from_v8_with_v8s_recipe(root: Path) -> None:
     """v9 runs v8's script from the shipped v8 (runs/generator_v8.safetensors, kept when
     present) into runs/gen_v9 with batch seed 3."""
