@@ -150,46 +150,38 @@ def test_generator_v8_default_scenes_are_v7s(root: Path) -> None:
     assert not (root / "data" / "gen_v6").exists()
 
 
-def test_generator_v17_goes_on_from_v16_with_its_fill_recipe(root: Path) -> None:
+@pytest.mark.parametrize(
+    ("script", "out", "seed", "threads", "first_missing"),
+    [
+        ("train_generator_v17.sh", "runs/gen_v17a", "13", "1", "10003"),
+        ("train_generator_v17b.sh", "runs/gen_v17b", "14", "2", "10420"),
+    ],
+)
+def test_generator_v17_and_v17b_go_on_from_v16_with_its_fill_recipe(
+    root: Path, script: str, out: str, seed: str, threads: str, first_missing: str
+) -> None:
     """v17 runs v8's script from the shipped v16 (runs/generator_v16.safetensors, kept when
-    present) with v16's flags (--fill-holes, the input term at 2), batch seed 13, into
-    runs/gen_v17a; by default it asks for the 527 scenes of rounds 0-6, so on the fake set it
-    stops at the first missing seed."""
+    present) with v16's flags (--fill-holes, the input term at 2), batch seed 13, one thread,
+    into runs/gen_v17a; v17b is v17 with batch seed 14 on two threads into runs/gen_v17b. By
+    default v17 asks for the 527 scenes of rounds 0-6 and v17b for rounds 7-8 only (from seed
+    10420), so on the fake set each stops at its first missing seed (v17b at none of rounds
+    0-6)."""
     (root / "runs").mkdir(exist_ok=True)
     (root / "runs" / "generator_v16.safetensors").write_bytes(b"")  # shipped_before keeps it
-    env = {"SCENES": "10000-10001", "SUBSET": "data/sub17"}
-    r = _run_script(root, "train_generator_v17.sh", env, "12")
-    assert r.returncode == 0, r.stderr
-    args = r.stdout.split()
-    expect = {"--init": "runs/generator_v16.safetensors", "--out": "runs/gen_v17a",
-              "--seed": "13", "--steps": "12", "--data": "data/sub17",
-              "--input-render-weight": "2"}  # fmt: skip
-    assert {flag: _flag(args, flag) for flag in expect} == expect
-    assert "--fill-holes" in args
-    default = _run_script(root, "train_generator_v17.sh", {}, "12")
-    assert default.returncode != 0 and "no scene with seed 10003" in default.stderr
-
-
-def test_generator_v17b_runs_v17s_recipe_on_rounds_7_and_8_only(root: Path) -> None:
-    """v17b: v17's script (from the shipped v16, v16's flags) into runs/gen_v17b, batch seed
-    14, on two threads; by default it asks for rounds 7-8 only (from seed 10420), so on the
-    fake set it stops at that first missing seed, not at any seed of rounds 0-6."""
-    (root / "runs").mkdir(exist_ok=True)
-    (root / "runs" / "generator_v16.safetensors").write_bytes(b"")
     fake_echo = root / "echo_threads"
     fake_echo.write_text('#!/usr/bin/env bash\necho "OMP=$OMP_NUM_THREADS $*"\n')
     fake_echo.chmod(0o755)
-    env = {"SCENES": "10000-10001", "SUBSET": "data/sub17b", "PROSPLAT": str(fake_echo)}
-    r = _run_script(root, "train_generator_v17b.sh", env, "12")
+    env = {"SCENES": "10000-10001", "SUBSET": "data/sub17", "PROSPLAT": str(fake_echo)}
+    r = _run_script(root, script, env, "12")
     assert r.returncode == 0, r.stderr
     args = r.stdout.split()
-    expect = {"--init": "runs/generator_v16.safetensors", "--out": "runs/gen_v17b",
-              "--seed": "14", "--steps": "12", "--data": "data/sub17b",
+    expect = {"--init": "runs/generator_v16.safetensors", "--out": out,
+              "--seed": seed, "--steps": "12", "--data": "data/sub17",
               "--input-render-weight": "2"}  # fmt: skip
     assert {flag: _flag(args, flag) for flag in expect} == expect
-    assert "--fill-holes" in args and args[0] == "OMP=2"
-    default = _run_script(root, "train_generator_v17b.sh", {}, "12")
-    assert default.returncode != 0 and "no scene with seed 10420" in default.stderr
+    assert "--fill-holes" in args and args[0] == f"OMP={threads}"
+    default = _run_script(root, script, {}, "12")
+    assert default.returncode != 0 and f"no scene with seed {first_missing}" in default.stderr
 
 
 def test_generator_v9_starts_from_v8_with_v8s_recipe(root: Path) -> None:
