@@ -687,6 +687,15 @@ def build_parser() -> argparse.ArgumentParser:
         "from the init's exact outputs (default 0: off)",
     )
     tg.add_argument(
+        "--grow-convex-upsampling",
+        action="store_true",
+        default=defaults.grow_convex_upsampling,
+        help="with --init prosplat weights: learn the depth's x4 upsampling weights (each "
+        "pixel reweights the four low-resolution depths bilinear interpolation reads, so "
+        "depth edges stay steps), starting at bilinear so training starts from the init's "
+        "exact outputs (default: off)",
+    )
+    tg.add_argument(
         "--grow-alexnet",
         type=int,
         default=defaults.grow_alexnet,

@@ -77,6 +77,7 @@ class GeneratorConfig:
     fine_matching_channels: int = 0
     image_matching_window: int = 0
     band_candidates: int = 0
+    convex_upsampling: bool = False
     mono_channels: int = 32
     mono_blocks: int = 3
     alexnet_layers: int = 0

@@ -3,8 +3,8 @@
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
 does not. When a change adds a module (the 1/2-resolution cost volume of
 ``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``; the images' own
-plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``), the
-trained
+plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``; the
+learned upsampling weights of ``convex_upsampling``), the trained
 weights are copied into the larger network and the new module enters through weights that
 start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
 only has to learn what the new input adds.
@@ -162,4 +162,24 @@ def grow_band(
         raise ValueError("grow_band: the weights do not match the network of their config")
     out = {key: value.clone() for key, value in state.items()}
     out.update({key: value for key, value in grown.items() if key.startswith("band.")})
+    return grown_config, out
+
+
+def grow_convex_upsampling(
+    config: GeneratorConfig, state: dict[str, Tensor]
+) -> tuple[GeneratorConfig, dict[str, Tensor]]:
+    """Weights of ``config`` (bilinear depth upsampling) -> the same network with learned
+    upsampling weights (:func:`prosplat.generator.depth_head.convex_upsample`), and a state
+    dict that gives the same outputs: the weights' convolution is zero (its init), which is
+    bilinear interpolation, and its gradient is not, so the first step opens it."""
+    if config.convex_upsampling:
+        raise ValueError("grow_convex_upsampling: the weights already have convex upsampling")
+    grown_config = replace(config, convex_upsampling=True)
+    grown = Generator(grown_config).state_dict()
+    if set(state) != {k for k in grown if not k.startswith("refiner.mask.")}:
+        raise ValueError(
+            "grow_convex_upsampling: the weights do not match the network of their config"
+        )
+    out = {key: value.clone() for key, value in state.items()}
+    out.update({k: v for k, v in grown.items() if k.startswith("refiner.mask.")})
     return grown_config, out
