@@ -1,15 +1,16 @@
 """What the generator's 1/4-resolution depth costs once upsampled: the true-depth bound again.
 
-The generator predicts depth at 1/4 of its matching size and upsamples it x4 (bilinearly, or
-with learned weights over the same four samples: ``GeneratorConfig.convex_upsampling``). This
-benchmark takes that step out of the generator: Blender's true input depth is averaged to 1/4
+The generator predicts depth at 1/4 of its matching size and upsamples it x4 bilinearly, then
+corrects it with a small full-resolution network (``DepthRefiner``). This benchmark takes that
+step out of the generator: Blender's true input depth is averaged to 1/4
 resolution in inverse depth (sky at the ladder's sky shell, ``SKY_DEPTH_FACTOR`` x the
 farthest surface) and brought back to full resolution by
 
 - ``bilinear``: what the generator did up to v16;
 - ``nearest``: the cell's own value;
 - ``best of 4``: per pixel, the one of the four samples bilinear interpolation reads that is
-  nearest the true inverse depth, the best that learned weights over those samples can do;
+  nearest the true inverse depth, the best that learned (convex) upsampling weights over
+  those samples can do;
 - ``best of 9``: the same over the cell's 3x3 neighbourhood.
 
 Each depth map becomes Gaussians as the ladder's true-depth row makes them
@@ -32,12 +33,21 @@ from torch import Tensor
 from prosplat.data import find_scenes, load_scene
 from prosplat.enhance import render_view
 from prosplat.evaluate import scene_at
-from prosplat.generator.depth_head import bilinear_support
 from prosplat.ladder.geometry import SKY_DEPTH_FACTOR, resize_depths, true_depth_gaussians
 from prosplat.metrics import LPIPS, psnr
 
 FACTOR = 4  # the generator's depth is predicted at 1/4 of its matching size
 METHODS = ("true depth", "bilinear", "nearest", "best of 4", "best of 9")
+
+
+def bilinear_support(n_low: int, n_high: int) -> tuple[Tensor, Tensor, Tensor]:
+    """Along one axis, where ``F.interpolate(mode="bilinear", align_corners=False)`` from
+    ``n_low`` to ``n_high`` samples reads: ``i0, i1 [n_high]`` the two source indices and
+    ``frac [n_high]`` the weight of ``i1`` (coordinates below 0 clamp to 0, indices above
+    ``n_low - 1`` to it, as torch does)."""
+    src = ((torch.arange(n_high) + 0.5) * (n_low / n_high) - 0.5).clamp(min=0)
+    i0 = src.floor().long().clamp(max=n_low - 1)
+    return i0, (i0 + 1).clamp(max=n_low - 1), src - i0
 
 
 def _candidates_4(low: Tensor, height: int, width: int) -> Tensor:

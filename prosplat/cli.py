@@ -687,13 +687,15 @@ def build_parser() -> argparse.ArgumentParser:
         "from the init's exact outputs (default 0: off)",
     )
     tg.add_argument(
-        "--grow-convex-upsampling",
-        action="store_true",
-        default=defaults.grow_convex_upsampling,
-        help="with --init prosplat weights: learn the depth's x4 upsampling weights (each "
-        "pixel reweights the four low-resolution depths bilinear interpolation reads, so "
-        "depth edges stay steps), starting at bilinear so training starts from the init's "
-        "exact outputs (default: off)",
+        "--grow-refine-context",
+        type=int,
+        default=defaults.grow_refine_context,
+        choices=range(5),
+        metavar="N",
+        help="with --init prosplat weights: append N dilated residual blocks (dilation 2, 4, "
+        "8, 16) to the full-resolution depth refiner, widening the view that sharpens depth "
+        "edges; they enter as the identity so training starts from the init's exact outputs "
+        "(default 0: off)",
     )
     tg.add_argument(
         "--grow-alexnet",

@@ -11,16 +11,10 @@ probability (1/D when the volume is flat, 1 when one candidate wins).
 Upsampling: bilinear x4 of ``t`` (smooth, in the space where it is linear in pixel shifts) plus
 a learned full-resolution correction added in logit(t) space (keeps t in (0, 1)), predicted by
 a small conv net that sees the image, so depth edges can snap to colour edges. That net's
-features also feed the Gaussian adapter.
-
-Optional (``GeneratorConfig.convex_upsampling``): the x4 step reweights, per full-resolution
-pixel, the four low-resolution samples that bilinear interpolation reads, with weights a
-convolution of the refiner's features predicts (a softmax around the bilinear weights, which
-it reproduces exactly at zero). Why: a bilinear ramp between a foreground and a background
-cell puts every pixel of a 1/4-resolution edge at an in-between depth, which other views see as
-a skirt from the object down to the floor. Blender's true depth averaged to 1/4 resolution and
-upsampled bilinearly loses 2.0 dB of the true-depth bound at 128 px (21.76 -> 19.77 dB, raw
-views filled); picking the best of the same four samples per pixel loses 0.7 (21.08).
+features also feed the Gaussian adapter. ``GeneratorConfig.refine_context_blocks`` widens its
+view with dilated residual blocks (dilations 2, 4, 8, ...): the 1/4-resolution depth is smooth
+across two or three cells at an object's silhouette, 8-12 px at full resolution, wider than
+the net's 9-px receptive field.
 """
 
 from __future__ import annotations
@@ -29,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from prosplat.generator.layers import ConvNormAct, ResBlock
+from prosplat.generator.layers import ConvNormAct, GrowableResBlock, ResBlock
 
 
 class UNet(nn.Module):
@@ -126,52 +120,23 @@ class DepthHead(nn.Module):
         return t, conf, hidden
 
 
-def bilinear_support(n_low: int, n_high: int, device=None) -> tuple[Tensor, Tensor, Tensor]:
-    """Along one axis, where ``F.interpolate(mode="bilinear", align_corners=False)`` from
-    ``n_low`` to ``n_high`` samples reads: ``i0, i1 [n_high]`` (long) the two source indices
-    and ``frac [n_high]`` the weight of ``i1`` (source coordinates below 0 clamp to 0, indices
-    above ``n_low - 1`` to it, as torch does)."""
-    src = ((torch.arange(n_high, device=device) + 0.5) * (n_low / n_high) - 0.5).clamp(min=0)
-    i0 = src.floor().long().clamp(max=n_low - 1)
-    i1 = (i0 + 1).clamp(max=n_low - 1)
-    return i0, i1, src - i0
-
-
-def convex_upsample(t: Tensor, logits: Tensor) -> Tensor:
-    """t [N,1,h,w], logits [N,4,H,W] -> [N,1,H,W]: each full-resolution pixel a convex
-    combination of the four samples of ``t`` that bilinear interpolation reads (rows i0/i1 x
-    columns i0/i1, in that order), weighted by ``softmax(log w_bilinear + logits)``. Zero
-    logits give bilinear interpolation (to ~1e-6 where a bilinear weight is 0)."""
-    h, w = t.shape[-2:]
-    big_h, big_w = logits.shape[-2:]
-    y0, y1, fy = bilinear_support(h, big_h, t.device)
-    x0, x1, fx = bilinear_support(w, big_w, t.device)
-    wy = torch.stack([1 - fy, fy]).to(t.dtype)  # [2,H]
-    wx = torch.stack([1 - fx, fx]).to(t.dtype)  # [2,W]
-    prior = (wy[:, None, :, None] * wx[None, :, None, :]).reshape(4, big_h, big_w)  # [4,H,W]
-    weights = torch.softmax(prior.clamp(min=1e-6).log() + logits, dim=1)  # [N,4,H,W]
-    samples = torch.cat(
-        [t[:, :, ys][:, :, :, xs] for ys in (y0, y1) for xs in (x0, x1)], dim=1
-    )  # [N,4,H,W]
-    return (weights * samples).sum(1, keepdim=True)
-
-
 class DepthRefiner(nn.Module):
     """Upsample t and confidence to full resolution and correct t with a learned residual;
-    ``convex``: t's upsampling weights are learned too (:func:`convex_upsample`)."""
+    ``context_blocks`` dilated residual blocks (dilation 2, 4, 8, ...) after the body widen the
+    receptive field of the correction and of the adapter's features."""
 
-    def __init__(self, hidden_channels: int, channels: int, convex: bool = False) -> None:
+    def __init__(self, hidden_channels: int, channels: int, context_blocks: int = 0) -> None:
         super().__init__()
         self.reduce = nn.Conv2d(hidden_channels, channels, 1)
-        self.body = nn.Sequential(ConvNormAct(3 + 2 + channels, channels), ResBlock(channels))
+        self.body = nn.Sequential(
+            ConvNormAct(3 + 2 + channels, channels),
+            ResBlock(channels),
+            *(GrowableResBlock(channels, 2 ** (i + 1)) for i in range(context_blocks)),
+        )
         self.delta = nn.Conv2d(channels, 1, 3, padding=1)
         with torch.no_grad():  # start close to plain bilinear upsampling
             self.delta.weight.mul_(0.1)
             self.delta.bias.zero_()
-        self.mask = nn.Conv2d(channels, 4, 3, padding=1) if convex else None
-        if self.mask is not None:  # zero: exactly bilinear until training opens it
-            nn.init.zeros_(self.mask.weight)
-            nn.init.zeros_(self.mask.bias)
 
     def forward(
         self, image: Tensor, t: Tensor, conf: Tensor, hidden: Tensor
@@ -186,8 +151,6 @@ class DepthRefiner(nn.Module):
         t_up, conf_up = up(t), up(conf)  # [N,1,H,W] each
         f_up = up(self.reduce(hidden))  # [N,R,H,W]
         feat = self.body(torch.cat([image, t_up, conf_up, f_up], dim=1))  # [N,R,H,W]
-        if self.mask is not None:
-            t_up = convex_upsample(t, self.mask(feat))  # [N,1,H,W]
         eps = 1e-4  # t of exactly 0 or 1 (all mass on the end candidate) has an infinite logit
         t_ref = torch.sigmoid(torch.logit(t_up.clamp(eps, 1 - eps)) + self.delta(feat))
         return t_ref, conf_up, feat

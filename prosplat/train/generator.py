@@ -278,9 +278,9 @@ class TrainConfig:
     # with a prosplat ``init`` without it: add the learned depth sweep over this many band
     # depths after the depth refiner, through a zero convolution (grow.grow_band); 0 = off
     grow_band: int = 0
-    # with --init prosplat weights: learned weights for the depth's x4 upsampling, starting at
-    # bilinear (grow.grow_convex_upsampling); False = off
-    grow_convex_upsampling: bool = False
+    # with --init prosplat weights: dilated residual blocks appended to the depth refiner,
+    # entering as the identity (grow.grow_refine_context); 0 = off
+    grow_refine_context: int = 0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -328,12 +328,14 @@ class TrainConfig:
             )
         if self.grow_band < 0 or self.grow_band == 1:
             raise ValueError(f"grow_band is a candidate count >= 2 (0: off), got {self.grow_band}")
+        if not 0 <= self.grow_refine_context <= 4:
+            raise ValueError(f"grow_refine_context must be 0-4, got {self.grow_refine_context}")
         for name in (
             "grow_fine_matching",
             "grow_alexnet",
             "grow_image_matching",
             "grow_band",
-            "grow_convex_upsampling",
+            "grow_refine_context",
         ):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
@@ -689,7 +691,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             or cfg.grow_alexnet
             or cfg.grow_image_matching
             or cfg.grow_band
-            or cfg.grow_convex_upsampling
+            or cfg.grow_refine_context
         ):
             model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
@@ -896,17 +898,17 @@ def _init_weights(cfg: TrainConfig):
 def _grown_init(cfg: TrainConfig):
     """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
     channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by the image cost volume of
-    ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``, then by learned
-    upsampling (``cfg.grow_convex_upsampling``); on a resume only the
+    ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``, then by the refiner's
+    ``cfg.grow_refine_context`` dilated blocks; on a resume only the
     config is used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
     from prosplat.generator.grow import (
         grow_alexnet,
         grow_band,
-        grow_convex_upsampling,
         grow_fine_matching,
         grow_image_matching,
+        grow_refine_context,
     )
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
@@ -921,8 +923,8 @@ def _grown_init(cfg: TrainConfig):
         config, state = grow_image_matching(config, state, cfg.grow_image_matching)
     if cfg.grow_band:
         config, state = grow_band(config, state, cfg.grow_band)
-    if cfg.grow_convex_upsampling:
-        config, state = grow_convex_upsampling(config, state)
+    if cfg.grow_refine_context:
+        config, state = grow_refine_context(config, state, cfg.grow_refine_context)
     return config, state
 
 
