@@ -687,17 +687,6 @@ def build_parser() -> argparse.ArgumentParser:
         "from the init's exact outputs (default 0: off)",
     )
     tg.add_argument(
-        "--grow-refine-context",
-        type=int,
-        default=defaults.grow_refine_context,
-        choices=range(5),
-        metavar="N",
-        help="with --init prosplat weights: append N dilated residual blocks (dilation 2, 4, "
-        "8, 16) to the full-resolution depth refiner, widening the view that sharpens depth "
-        "edges; they enter as the identity so training starts from the init's exact outputs "
-        "(default 0: off)",
-    )
-    tg.add_argument(
         "--grow-alexnet",
         type=int,
         default=defaults.grow_alexnet,

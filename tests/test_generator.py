@@ -292,30 +292,6 @@ def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
         grow_fine_matching(SMALL, old, 0)
 
 
-def test_grow_refine_context_reproduces_the_trained_network_then_learns():
-    """Growing weights by dilated refiner blocks gives the same Gaussians (each block starts as
-    the identity), a gradient step opens them, and two grows stack (dilations 2, 4, then 8)."""
-    from dataclasses import replace
-
-    from prosplat.generator.grow import grow_refine_context
-    from prosplat.train.generator import TrainConfig
-
-    old, cfg, state, new = grown_then_trained(SMALL, grow_refine_context, 2)
-    assert cfg == replace(SMALL, refine_context_blocks=2)
-    blocks = list(new.refiner.body)[2:]
-    assert [b.body[1].dilation for b in blocks] == [(2, 2), (4, 4)]
-    assert all(b.body[-1].weight.grad.abs().max() > 0 for b in blocks)
-    cfg3, state3 = grow_refine_context(cfg, state, 1)
-    assert cfg3.refine_context_blocks == 3
-    assert list(Generator(cfg3).refiner.body)[-1].body[1].dilation == (8, 8)
-    with pytest.raises(ValueError, match="blocks"):
-        grow_refine_context(SMALL, old, 0)
-    with pytest.raises(ValueError, match="refine_context_blocks"):
-        GeneratorConfig(refine_context_blocks=5)
-    with pytest.raises(ValueError, match="grow_refine_context"):
-        TrainConfig(data="x", out="y", grow_refine_context=1)
-
-
 def test_grow_alexnet_reproduces_the_trained_network_then_learns(tmp_path):
     """Growing weights by frozen AlexNet features gives the same Gaussians as the original
     network (the projection's last layer is zero); the backbone is LPIPS's own AlexNet (its

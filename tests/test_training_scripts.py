@@ -155,19 +155,17 @@ def test_generator_v8_default_scenes_are_v7s(root: Path) -> None:
     [
         ("train_generator_v17.sh", "runs/gen_v17a", "13", "1", "10003"),
         ("train_generator_v17b.sh", "runs/gen_v17b", "14", "2", "10420"),
-        ("train_generator_v18.sh", "runs/gen_v18", "14", "2", "10420"),
     ],
 )
-def test_generator_v17_v17b_v18_go_on_from_v16_with_its_fill_recipe(
+def test_generator_v17_and_v17b_go_on_from_v16_with_its_fill_recipe(
     root: Path, script: str, out: str, seed: str, threads: str, first_missing: str
 ) -> None:
     """v17 runs v8's script from the shipped v16 (runs/generator_v16.safetensors, kept when
     present) with v16's flags (--fill-holes, the input term at 2), batch seed 13, one thread,
-    into runs/gen_v17a; v17b is v17 with batch seed 14 on two threads into runs/gen_v17b; v18
-    is v17b grown by three refiner blocks (--grow-refine-context 3, nothing else) into
-    runs/gen_v18. By default v17 asks for the 527 scenes of rounds 0-6 and v17b and v18 for
-    rounds 7-8 only (from seed 10420), so on the fake set each stops at its first missing
-    seed (v17b and v18 at none of rounds 0-6)."""
+    into runs/gen_v17a; v17b is v17 with batch seed 14 on two threads into runs/gen_v17b. By
+    default v17 asks for the 527 scenes of rounds 0-6 and v17b for rounds 7-8 only (from seed
+    10420), so on the fake set each stops at its first missing seed (v17b at none of rounds
+    0-6)."""
     (root / "runs").mkdir(exist_ok=True)
     (root / "runs" / "generator_v16.safetensors").write_bytes(b"")  # shipped_before keeps it
     fake_echo = root / "echo_threads"
@@ -182,8 +180,6 @@ def test_generator_v17_v17b_v18_go_on_from_v16_with_its_fill_recipe(
               "--input-render-weight": "2"}  # fmt: skip
     assert {flag: _flag(args, flag) for flag in expect} == expect
     assert "--fill-holes" in args and args[0] == f"OMP={threads}"
-    grow = _flag(args, "--grow-refine-context") if "--grow-refine-context" in args else None
-    assert grow == ("3" if script == "train_generator_v18.sh" else None)
     default = _run_script(root, script, {}, "12")
     assert default.returncode != 0 and f"no scene with seed {first_missing}" in default.stderr
 

@@ -58,9 +58,6 @@ class GeneratorConfig:
             halves the resolution); three or more levels.
         refine_channels: channels of the full-resolution refinement network whose features
             also feed the Gaussian adapter.
-        refine_context_blocks: dilated residual blocks (dilations 2, 4, 8, ...) at the end
-            of that network, widening its receptive field from 9 px to 9 + 8·(2^n - 1) px.
-            0 (v1-v16 weights) leaves them out.
         sh_degree: spherical-harmonic degree of the Gaussians (0-3).
         scale_factor_min, scale_factor_max: bounds of the learned factor that multiplies the
             pixel footprint ``depth / f`` to give a Gaussian's scale (geometric-mean init, 1.0
@@ -85,7 +82,6 @@ class GeneratorConfig:
     alexnet_layers: int = 0
     unet_channels: tuple[int, ...] = (32, 40, 48, 64)
     refine_channels: int = 16
-    refine_context_blocks: int = 0
     sh_degree: int = 0
     scale_factor_min: float = 0.25
     scale_factor_max: float = 4.0
@@ -120,11 +116,6 @@ class GeneratorConfig:
             raise ValueError(
                 "GeneratorConfig.image_matching_window must be 0 (off) or odd, got "
                 f"{self.image_matching_window}"
-            )
-        if not 0 <= self.refine_context_blocks <= 4:
-            raise ValueError(
-                "GeneratorConfig.refine_context_blocks must be 0-4, got "
-                f"{self.refine_context_blocks}"
             )
         if self.band_candidates < 0 or self.band_candidates == 1:
             raise ValueError(

@@ -11,10 +11,7 @@ probability (1/D when the volume is flat, 1 when one candidate wins).
 Upsampling: bilinear x4 of ``t`` (smooth, in the space where it is linear in pixel shifts) plus
 a learned full-resolution correction added in logit(t) space (keeps t in (0, 1)), predicted by
 a small conv net that sees the image, so depth edges can snap to colour edges. That net's
-features also feed the Gaussian adapter. ``GeneratorConfig.refine_context_blocks`` widens its
-view with dilated residual blocks (dilations 2, 4, 8, ...): the 1/4-resolution depth is smooth
-across two or three cells at an object's silhouette, 8-12 px at full resolution, wider than
-the net's 9-px receptive field.
+features also feed the Gaussian adapter.
 """
 
 from __future__ import annotations
@@ -23,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from prosplat.generator.layers import ConvNormAct, GrowableResBlock, ResBlock
+from prosplat.generator.layers import ConvNormAct, ResBlock
 
 
 class UNet(nn.Module):
@@ -121,18 +118,12 @@ class DepthHead(nn.Module):
 
 
 class DepthRefiner(nn.Module):
-    """Upsample t and confidence to full resolution and correct t with a learned residual;
-    ``context_blocks`` dilated residual blocks (dilation 2, 4, 8, ...) after the body widen the
-    receptive field of the correction and of the adapter's features."""
+    """Upsample t and confidence to full resolution and correct t with a learned residual."""
 
-    def __init__(self, hidden_channels: int, channels: int, context_blocks: int = 0) -> None:
+    def __init__(self, hidden_channels: int, channels: int) -> None:
         super().__init__()
         self.reduce = nn.Conv2d(hidden_channels, channels, 1)
-        self.body = nn.Sequential(
-            ConvNormAct(3 + 2 + channels, channels),
-            ResBlock(channels),
-            *(GrowableResBlock(channels, 2 ** (i + 1)) for i in range(context_blocks)),
-        )
+        self.body = nn.Sequential(ConvNormAct(3 + 2 + channels, channels), ResBlock(channels))
         self.delta = nn.Conv2d(channels, 1, 3, padding=1)
         with torch.no_grad():  # start close to plain bilinear upsampling
             self.delta.weight.mul_(0.1)

@@ -3,8 +3,8 @@
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
 does not. When a change adds a module (the 1/2-resolution cost volume of
 ``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``; the images' own
-plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``; the
-depth refiner's dilated blocks of ``refine_context_blocks``), the trained
+plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``), the
+trained
 weights are copied into the larger network and the new module enters through weights that
 start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
 only has to learn what the new input adds.
@@ -162,25 +162,4 @@ def grow_band(
         raise ValueError("grow_band: the weights do not match the network of their config")
     out = {key: value.clone() for key, value in state.items()}
     out.update({key: value for key, value in grown.items() if key.startswith("band.")})
-    return grown_config, out
-
-
-def grow_refine_context(
-    config: GeneratorConfig, state: dict[str, Tensor], blocks: int
-) -> tuple[GeneratorConfig, dict[str, Tensor]]:
-    """Weights of ``config`` -> the same network with ``blocks`` more dilated residual blocks
-    at the end of the depth refiner (:class:`prosplat.generator.layers.GrowableResBlock`), and
-    a state dict that gives the same outputs: each new block's last GroupNorm scale is zero
-    (its init), so it adds nothing, while its gradient is not zero, so the first step opens
-    it. The blocks' convolutions keep a fresh random init (seeded by the caller)."""
-    if blocks < 1:
-        raise ValueError(f"grow_refine_context: blocks must be >= 1, got {blocks}")
-    grown_config = replace(config, refine_context_blocks=config.refine_context_blocks + blocks)
-    grown = Generator(grown_config).state_dict()
-    if not set(state) <= set(grown):
-        raise ValueError(
-            "grow_refine_context: the weights do not match the network of their config"
-        )
-    out = {key: value.clone() for key, value in state.items()}
-    out.update({key: value for key, value in grown.items() if key not in state})
     return grown_config, out

@@ -17,25 +17,6 @@ def group_norm(channels: int) -> nn.GroupNorm:
     return nn.GroupNorm(math.gcd(8, channels), channels)
 
 
-class GrowableResBlock(nn.Module):
-    """``x + body(x)`` with no activation after the sum and the body's last GroupNorm scale
-    starting at zero: the block is the identity until training opens it, so it can be
-    appended to trained weights without changing what they compute (``ResBlock`` activates
-    after the sum, which is no identity)."""
-
-    def __init__(self, channels: int, dilation: int = 1) -> None:
-        super().__init__()
-        self.body = nn.Sequential(
-            ConvNormAct(channels, channels, dilation=dilation),
-            nn.Conv2d(channels, channels, 3, 1, dilation, dilation=dilation, bias=False),
-            group_norm(channels),
-        )
-        nn.init.zeros_(self.body[-1].weight)
-
-    def forward(self, x: Tensor) -> Tensor:  # [N,C,H,W] -> [N,C,H,W]
-        return x + self.body(x)
-
-
 class ConvNormAct(nn.Sequential):
     """3x3 (or ``kernel``) conv -> GroupNorm -> GELU."""
 

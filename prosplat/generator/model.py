@@ -74,7 +74,7 @@ class Generator(nn.Module):
             fine_cost=c.fine_matching_channels > 0,
             image_cost=c.image_matching_window > 0,
         )
-        self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels, c.refine_context_blocks)
+        self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels)
         self.band = BandRefiner(c.band_candidates, c.refine_channels) if c.band_candidates else None
         self.adapter = GaussianAdapter(
             c.refine_channels,

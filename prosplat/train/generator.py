@@ -278,9 +278,6 @@ class TrainConfig:
     # with a prosplat ``init`` without it: add the learned depth sweep over this many band
     # depths after the depth refiner, through a zero convolution (grow.grow_band); 0 = off
     grow_band: int = 0
-    # with --init prosplat weights: dilated residual blocks appended to the depth refiner,
-    # entering as the identity (grow.grow_refine_context); 0 = off
-    grow_refine_context: int = 0
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -328,15 +325,7 @@ class TrainConfig:
             )
         if self.grow_band < 0 or self.grow_band == 1:
             raise ValueError(f"grow_band is a candidate count >= 2 (0: off), got {self.grow_band}")
-        if not 0 <= self.grow_refine_context <= 4:
-            raise ValueError(f"grow_refine_context must be 0-4, got {self.grow_refine_context}")
-        for name in (
-            "grow_fine_matching",
-            "grow_alexnet",
-            "grow_image_matching",
-            "grow_band",
-            "grow_refine_context",
-        ):
+        for name in ("grow_fine_matching", "grow_alexnet", "grow_image_matching", "grow_band"):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
 
@@ -686,13 +675,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         pipe = None
     else:
         init_state = None
-        if (
-            cfg.grow_fine_matching
-            or cfg.grow_alexnet
-            or cfg.grow_image_matching
-            or cfg.grow_band
-            or cfg.grow_refine_context
-        ):
+        if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_image_matching or cfg.grow_band:
             model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
@@ -898,8 +881,7 @@ def _init_weights(cfg: TrainConfig):
 def _grown_init(cfg: TrainConfig):
     """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
     channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by the image cost volume of
-    ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``, then by the refiner's
-    ``cfg.grow_refine_context`` dilated blocks; on a resume only the
+    ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``; on a resume only the
     config is used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
@@ -908,7 +890,6 @@ def _grown_init(cfg: TrainConfig):
         grow_band,
         grow_fine_matching,
         grow_image_matching,
-        grow_refine_context,
     )
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
@@ -923,8 +904,6 @@ def _grown_init(cfg: TrainConfig):
         config, state = grow_image_matching(config, state, cfg.grow_image_matching)
     if cfg.grow_band:
         config, state = grow_band(config, state, cfg.grow_band)
-    if cfg.grow_refine_context:
-        config, state = grow_refine_context(config, state, cfg.grow_refine_context)
     return config, state
 
 
