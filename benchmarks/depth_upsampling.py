@@ -36,7 +36,7 @@ from prosplat.evaluate import scene_at
 from prosplat.ladder.geometry import SKY_DEPTH_FACTOR, resize_depths, true_depth_gaussians
 from prosplat.metrics import LPIPS, psnr
 
-FACTOR = 4  # the generator's depth is predicted at 1/4 of its matching size
+FACTOR = 4  # the generator's depth is predicted at 1/4 of its matching size (--factor)
 METHODS = ("true depth", "bilinear", "nearest", "best of 4", "best of 9")
 
 
@@ -57,29 +57,32 @@ def _candidates_4(low: Tensor, height: int, width: int) -> Tensor:
     return torch.cat([low[:, :, ys][:, :, :, xs] for ys in (y0, y1) for xs in (x0, x1)], 1)
 
 
-def _candidates_9(low: Tensor) -> Tensor:
+def _candidates_9(low: Tensor, factor: int) -> Tensor:
     """low [V,1,h,w] -> [V,9,H,W]: the 3x3 low-resolution neighbourhood of each pixel's cell."""
     v, _, h, w = low.shape
     near = F.unfold(F.pad(low, (1, 1, 1, 1), mode="replicate"), 3).view(v, 9, h, w)
-    return F.interpolate(near, scale_factor=FACTOR, mode="nearest")
+    return F.interpolate(near, scale_factor=factor, mode="nearest")
 
 
-def upsampled_depths(depth: Tensor, method: str) -> Tensor:
-    """depth [V,H,W] (0 = sky), H and W multiples of 4 -> [V,H,W] after the 1/4-resolution
-    round trip of ``method`` (sky kept at the sky shell's depth)."""
+def upsampled_depths(depth: Tensor, method: str, factor: int = FACTOR) -> Tensor:
+    """depth [V,H,W] (0 = sky), H and W multiples of ``factor`` -> [V,H,W] after the
+    1/``factor``-resolution round trip of ``method`` (sky kept at the sky shell's depth)."""
     if method == "true depth":
         return depth
     surface = depth > 0
     far = SKY_DEPTH_FACTOR * float(depth[surface].max()) if surface.any() else 1.0
     inv = 1.0 / torch.where(surface, depth, torch.full_like(depth, far))[:, None]  # [V,1,H,W]
-    low = F.avg_pool2d(inv, FACTOR)  # [V,1,h,w]
+    low = F.avg_pool2d(inv, factor)  # [V,1,h,w]
     height, width = inv.shape[-2:]
     if method == "bilinear":
         up = F.interpolate(low, size=(height, width), mode="bilinear", align_corners=False)
     elif method == "nearest":
         up = F.interpolate(low, size=(height, width), mode="nearest")
     else:
-        cands = _candidates_4(low, height, width) if method == "best of 4" else _candidates_9(low)
+        if method == "best of 4":
+            cands = _candidates_4(low, height, width)
+        else:
+            cands = _candidates_9(low, factor)
         up = cands.gather(1, (cands - inv).abs().argmin(1, keepdim=True))
     return 1.0 / up[:, 0]
 
@@ -90,9 +93,12 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--views", type=int, default=4)
     ap.add_argument("--scenes", type=int, default=None, help="only the first N scenes")
+    ap.add_argument(
+        "--factor", type=int, default=FACTOR, help="the low resolution is 1/FACTOR (default 4)"
+    )
     args = ap.parse_args()
-    if args.size % FACTOR:
-        raise SystemExit(f"--size must be a multiple of {FACTOR}, got {args.size}")
+    if args.factor < 1 or args.size % args.factor:
+        raise SystemExit(f"--size must be a multiple of --factor, got {args.size}, {args.factor}")
     lpips = LPIPS()
     scores: dict[str, list[tuple[float, float]]] = {m: [] for m in METHODS}
     folders = find_scenes(Path(args.data))[: args.scenes]
@@ -103,7 +109,10 @@ def main() -> None:
         depth = resize_depths(scene.depths[at.inputs], w, h)  # [V,H,W]
         for method in METHODS:
             g = true_depth_gaussians(
-                at.input_images, upsampled_depths(depth, method), at.input_cameras, part="all"
+                at.input_images,
+                upsampled_depths(depth, method, args.factor),
+                at.input_cameras,
+                part="all",
             )
             for t in scene.target_indices:
                 gt = at.images[t]
@@ -113,7 +122,8 @@ def main() -> None:
                         (float(psnr(view, gt)), float(lpips(view[None], gt[None])))
                     )
         print(f"[{n + 1}/{len(folders)}] {folder.name}", flush=True)
-    print(f"\n{args.data}, {args.size} px, {args.views} inputs, {len(scores['bilinear'])} targets")
+    n = len(scores["bilinear"])
+    print(f"\n{args.data}, {args.size} px, 1/{args.factor} res, {args.views} inputs, {n} targets")
     print("| input depth | PSNR (filled) | LPIPS |\n|---|---:|---:|")
     for method, rows in scores.items():
         p = statistics.mean(r[0] for r in rows)

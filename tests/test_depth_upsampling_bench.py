@@ -30,7 +30,9 @@ def test_depth_upsampling_bench_round_trips():
     cells = torch.tensor([[1.0, 2.0], [4.0, 8.0]]).repeat_interleave(4, 0).repeat_interleave(4, 1)
     for method in bench.METHODS:
         flat = torch.full((1, 8, 12), 3.0)
-        torch.testing.assert_close(bench.upsampled_depths(flat, method), flat, rtol=1e-5, atol=0)
+        for factor in (2, 4):
+            out = bench.upsampled_depths(flat, method, factor)
+            torch.testing.assert_close(out, flat, rtol=1e-5, atol=0)
         if method != "bilinear":
             out = bench.upsampled_depths(cells[None], method)
             torch.testing.assert_close(out, cells[None], rtol=1e-5, atol=0)
