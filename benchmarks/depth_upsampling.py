@@ -2,11 +2,11 @@
 
 The generator predicts depth at 1/4 of its matching size and upsamples it x4 bilinearly, then
 corrects it with a small full-resolution network (``DepthRefiner``). This benchmark takes that
-step out of the generator: Blender's true input depth is averaged to 1/4
+step out of the generator: Blender's true input depth is averaged to 1/4 (``--factor``)
 resolution in inverse depth (sky at the ladder's sky shell, ``SKY_DEPTH_FACTOR`` x the
 farthest surface) and brought back to full resolution by
 
-- ``bilinear``: what the generator did up to v16;
+- ``bilinear``: what the generator's depth head does before its refiner;
 - ``nearest``: the cell's own value;
 - ``best of 4``: per pixel, the one of the four samples bilinear interpolation reads that is
   nearest the true inverse depth, the best that learned (convex) upsampling weights over
