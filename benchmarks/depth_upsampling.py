@@ -69,6 +69,11 @@ def upsampled_depths(depth: Tensor, method: str, factor: int = FACTOR) -> Tensor
     1/``factor``-resolution round trip of ``method`` (sky kept at the sky shell's depth)."""
     if method == "true depth":
         return depth
+    if depth.shape[-2] % factor or depth.shape[-1] % factor:
+        raise ValueError(
+            f"upsampled_depths: a {depth.shape[-1]}x{depth.shape[-2]} depth map does not split "
+            f"into {factor}x{factor} cells; pick --size and --factor so both sides divide"
+        )
     surface = depth > 0
     far = SKY_DEPTH_FACTOR * float(depth[surface].max()) if surface.any() else 1.0
     inv = 1.0 / torch.where(surface, depth, torch.full_like(depth, far))[:, None]  # [V,1,H,W]
@@ -78,11 +83,9 @@ def upsampled_depths(depth: Tensor, method: str, factor: int = FACTOR) -> Tensor
         up = F.interpolate(low, size=(height, width), mode="bilinear", align_corners=False)
     elif method == "nearest":
         up = F.interpolate(low, size=(height, width), mode="nearest")
-    else:
-        if method == "best of 4":
-            cands = _candidates_4(low, height, width)
-        else:
-            cands = _candidates_9(low, factor)
+    else:  # best of 4 / best of 9: the candidate nearest the true inverse depth
+        four = method == "best of 4"
+        cands = _candidates_4(low, height, width) if four else _candidates_9(low, factor)
         up = cands.gather(1, (cands - inv).abs().argmin(1, keepdim=True))
     return 1.0 / up[:, 0]
 

@@ -25,7 +25,7 @@ def test_depth_upsampling_bench_round_trips():
     """benchmarks/depth_upsampling.py: a constant depth comes back from every method, a depth
     constant over each 4x4 cell from all but bilinear; at a step edge off the cells' grid
     bilinear invents in-between depths, the best of the four samples it reads does not, and
-    the sky stays far."""
+    the sky stays far; a map that does not split into cells is refused."""
     bench = load_benchmark("depth_upsampling")
     cells = torch.tensor([[1.0, 2.0], [4.0, 8.0]]).repeat_interleave(4, 0).repeat_interleave(4, 1)
     for method in bench.METHODS:
@@ -46,3 +46,5 @@ def test_depth_upsampling_bench_round_trips():
     assert any(min(abs(float(v) - u) for u in values) > 0.5 for v in bil[0, 8])
     assert float(best[0, 0, 0]) == pytest.approx(far)  # the sky: at the shell, not nearer
     assert abs(float(best[0, 8, 1]) - 2.0) < 1e-4 and abs(float(best[0, 8, 14]) - 8.0) < 1e-4
+    with pytest.raises(ValueError, match="--size and --factor"):
+        bench.upsampled_depths(torch.full((1, 8, 10), 3.0), "bilinear", 4)  # 10 px wide
