@@ -524,3 +524,55 @@ def test_gpu_generator_probes_then_trains_every_run_for_the_time_left(tmp_path: 
     assert again.returncode == 0, again.stdout + again.stderr
     resumed = [line.split() for line in calls.read_text().splitlines() if "/runs/a " in line]
     assert int(resumed[0][resumed[0].index("--steps") + 1]) > steps  # its steps added
+
+
+SEEN24 = [f"room_{s:06d}" for s in range(10000, 10018)] + [
+    f"{kind}_{20000 + 100 * k:06d}"
+    for k, kind in enumerate(
+        (
+            "textureless",
+            "specular",
+            "near_far",
+            "thin_structures",
+            "repeated_pattern",
+            "inside_outside",
+        )
+    )
+]
+
+
+@pytest.mark.parametrize("steps", ["15", "0"])
+def test_screen_generator_trains_on_seen_scenes_then_scores_them(tmp_path: Path, steps: str):
+    """The screen trains v16's recipe (train_generator_v17.sh, from v16) on the 24 scenes of
+    round 0 it links into data/seen24, then scores the run's checkpoint on those same scenes;
+    with 0 steps it trains nothing and scores the shipped weights."""
+    for name in SEEN24:
+        (tmp_path / "data" / "train128" / name).mkdir(parents=True)
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "generator_v16.safetensors").write_bytes(b"")  # shipped_before keeps it
+    calls = tmp_path / "calls.txt"
+    fake = tmp_path / "fake"
+    fake.write_text(f'#!/usr/bin/env bash\necho "$*" >> {calls}\n')
+    fake.chmod(0o755)
+    env = {"PROSPLAT": str(fake), "PY": str(fake)}
+    r = _run_script(tmp_path, "screen_generator.sh", env, "cand", steps)
+    assert r.returncode == 0, r.stderr
+    lines = calls.read_text().splitlines()
+    assert sorted(_links(tmp_path / "data" / "seen24")) == sorted(SEEN24)
+    train = [line.split() for line in lines if line.startswith("train generator")]
+    ladder = next(line.split() for line in lines if line.startswith("eval ladder"))
+    depth = next(line.split() for line in lines if "input_depth.py" in line)
+    if steps == "0":
+        assert train == []
+        weights = "prosplat/weights/generator_tiny.safetensors"
+    else:
+        (args,) = train
+        expect = {"--data": "data/seen24", "--steps": "15", "--out": "runs/screen_cand",
+                  "--init": "runs/generator_v16.safetensors"}  # fmt: skip
+        assert {flag: _flag(args, flag) for flag in expect} == expect
+        weights = "runs/screen_cand/checkpoint.safetensors"
+    assert _flag(ladder, "--data") == "data/seen24" and _flag(ladder, "--sizes") == "128"
+    assert _flag(ladder, "--generator") == weights
+    assert (
+        _flag(depth, "--data") == "data/seen24" and _flag(depth, "--generator") == f"cand={weights}"
+    )
