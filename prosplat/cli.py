@@ -588,6 +588,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ssim_weight",
         "depth_weight",
         "input_depth_weight",
+        "input_depth_ce_weight",
         "input_render_weight",
         "crop_prob",
         "frame_prob",

@@ -623,6 +623,64 @@ def test_training_with_targets_at_twice_the_input_size(tmp_path):
     assert read_checkpoint(path, "generator")[1]["trained_size"] == "32"
 
 
+def test_depth_ce_is_the_cross_entropy_with_a_two_hot_of_the_true_inverse_depth():
+    """depth_ce: each one-surface cell's target splits between the two candidates that bracket
+    its inverse depth (so the target's expectation is that depth), the loss is the mean
+    cross-entropy over those cells (its gradient softmax - target), and sky or silhouette cells
+    (depths 0 or more than 5 % apart in the cell) do not count."""
+    from prosplat.train.generator import depth_ce
+
+    d, near, far = 8, torch.tensor([1.0]), torch.tensor([10.0])
+    cand = torch.linspace(1 / 1.0, 1 / 10.0, d)  # the head's candidates, near first
+    z = float(1 / (0.75 * cand[3] + 0.25 * cand[4]))  # 1/4 of the way from candidate 3 to 4
+    depths = torch.full((1, 2, 8, 8), z)
+    depths[0, 1, :4, :4] = 0  # sky in view 1's top-left cell
+    depths[0, 1, 4:, :4] = torch.tensor([z, 2 * z]).repeat(4, 2)  # a silhouette cell
+    logits = torch.randn(1, 2, d, 2, 2, requires_grad=True)
+    loss = depth_ce(logits, depths, near, far)
+    target = torch.zeros(d)
+    target[3], target[4] = 0.75, 0.25
+    logp = torch.log_softmax(logits.detach(), 2)  # [1,2,D,2,2]
+    valid = torch.ones(2, 2, 2, dtype=torch.bool)
+    valid[1, 0, 0] = valid[1, 1, 0] = False  # [view, row, col]: the sky and silhouette cells
+    per_cell = -(target[None, :, None, None] * logp[0]).sum(1)  # [2,2,2]
+    torch.testing.assert_close(loss, per_cell[valid].mean())
+    loss.backward()
+    grad = (logp[0].exp() - target[None, :, None, None]) / valid.sum()  # [2,D,2,2]
+    grad = grad * valid[:, None]
+    torch.testing.assert_close(logits.grad[0], grad)
+    # uniform logits score log D; all-sky depths leave nothing to score
+    flat = torch.zeros(1, 2, d, 2, 2)
+    torch.testing.assert_close(depth_ce(flat, depths, near, far), torch.log(torch.tensor(8.0)))
+    assert float(depth_ce(flat, torch.zeros_like(depths), near, far)) == 0
+    with pytest.raises(ValueError, match="multiple"):
+        depth_ce(flat, depths[..., :7], near, far)
+
+
+def test_input_depth_ce_trains_the_depth_head_towards_the_truth(dataset, tmp_path):
+    """--input-depth-ce-weight alone: the generator returns its head's logits [B,V,D,h,w] at
+    1/4 of the input size, the term is logged, and training on it lowers it."""
+    torch.manual_seed(0)
+    scene = SceneDataset(str(dataset.parent / "fixed"), n_inputs=2)[0]
+    gen = ProSplat().generator.eval()
+    with torch.no_grad():
+        out = gen(scene["input_images"][None], scene["input_K"][None], scene["input_w2c"][None],
+                  scene["near"][None], scene["far"][None])  # fmt: skip
+    h, w = scene["input_images"].shape[-2:]
+    assert out.depth_logits.shape == (1, 2, gen.config.num_depth_candidates, h // 4, w // 4)
+    assert out.detach().depth_logits is not None
+    cfg = TrainConfig(data=str(dataset.parent / "fixed"), out=str(tmp_path / "ce"), steps=30,
+                      targets=1, inputs=2, lpips_weight=0.0, log_every=1, warmup=1, lr=2e-3,
+                      input_depth_ce_weight=1.0, save_every=30)  # fmt: skip
+    train(cfg, progress=False)
+    log = [json.loads(line) for line in (tmp_path / "ce" / "log.jsonl").read_text().splitlines()]
+    first = sum(r["input_depth_ce"] for r in log[:5]) / 5
+    last = sum(r["input_depth_ce"] for r in log[-5:]) / 5
+    assert all(r["input_depth_ce"] > 0 for r in log) and last < 0.8 * first
+    with pytest.raises(ValueError, match="input_depth_ce_weight"):
+        TrainConfig(data="x", out="y", input_depth_ce_weight=-1)
+
+
 def test_log_depth_loss_is_the_same_at_every_scene_scale():
     """--depth-loss log scores the relative error (a scene scaled by s scores the same), while
     the inverse-depth L1 scales with 1/s; both are 0 for the true depth and reject unknown

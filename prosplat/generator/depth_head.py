@@ -90,10 +90,11 @@ class DepthHead(nn.Module):
         feats: Tensor,
         fine: Tensor | None = None,
         image: Tensor | None = None,
-    ) -> tuple[Tensor, Tensor, Tensor]:
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """cost [N,D,h,w], mono [N,Cm,h,w], feats [N,C,h,w], fine [N,D,2h,2w] or None, image
         [N,D,h,w] or None -> t [N,1,h,w] normalised inverse depth, confidence [N,1,h,w],
-        hidden [N,U0,h,w]."""
+        hidden [N,U0,h,w], logits [N,D,h,w] (candidates near to far, the prior included: what
+        a loss on the distribution itself needs)."""
         d = cost.shape[1]
         if (fine is None) != (self.fine_pool is None):
             raise ValueError("DepthHead: pass the fine cost volume exactly when built with it")
@@ -114,7 +115,7 @@ class DepthHead(nn.Module):
         t_cand = torch.linspace(1.0, 0.0, d, dtype=cost.dtype, device=cost.device)  # near->far
         t = (prob * t_cand[None, :, None, None]).sum(1, keepdim=True)  # [N,1,h,w] in [0,1]
         conf = prob.amax(1, keepdim=True)  # [N,1,h,w] in [1/D,1]
-        return t, conf, hidden
+        return t, conf, hidden, logits
 
 
 class DepthRefiner(nn.Module):

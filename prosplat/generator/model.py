@@ -285,9 +285,9 @@ class Generator(nn.Module):
         if cfg.image_matching_window:
             image_cost = self.image_cost(xm, K, w2c, near, far, (h, w)).flatten(0, 1)
 
-        t, conf, hidden = self.depth_head(
+        t, conf, hidden, logits = self.depth_head(
             cost.flatten(0, 1), mono, feats.flatten(0, 1), fine_cost, image_cost
-        )  # [BV,1,Hm/4,Wm/4] x2, [BV,U0,Hm/4,Wm/4]
+        )  # [BV,1,Hm/4,Wm/4] x2, [BV,U0,Hm/4,Wm/4], [BV,D,Hm/4,Wm/4]
         t, conf, rfeat = self.refiner(
             xm.flatten(0, 1), t, conf, hidden
         )  # [BV,1,Hm,Wm] x2, [BV,R,Hm,Wm]
@@ -317,4 +317,5 @@ class Generator(nn.Module):
             sh=g.sh.reshape(b, n, cfg.sh_coefficients, 3),
             depths=depth.view(b, v, h, w),
             confidence=conf.view(b, v, h, w),
+            depth_logits=logits.view(b, v, *logits.shape[1:]),
         )

@@ -22,6 +22,10 @@ class GeneratorOutput:
         sh: [B,N,K,3] SH coefficients, K = (sh_degree + 1)^2; colour = SH·basis + 0.5.
         depths: [B,V,H,W] z along each input camera's optical axis, in [near, far].
         confidence: [B,V,H,W] the largest candidate probability, in [1/D, 1].
+        depth_logits: [B,V,D,h,w] the depth head's logits over its D candidates (uniform in
+            inverse depth, near to far) at 1/4 of the matching size, for a loss on the
+            distribution (``TrainConfig.input_depth_ce_weight``); None where a generator has
+            no such head (the DepthSplat wrapper).
     """
 
     means: Tensor
@@ -31,6 +35,7 @@ class GeneratorOutput:
     sh: Tensor
     depths: Tensor
     confidence: Tensor
+    depth_logits: Tensor | None = None
 
     @property
     def batch_size(self) -> int:
@@ -45,4 +50,6 @@ class GeneratorOutput:
         )
 
     def detach(self) -> GeneratorOutput:
-        return GeneratorOutput(*(getattr(self, f.name).detach() for f in fields(self)))
+        return GeneratorOutput(
+            *(None if (x := getattr(self, f.name)) is None else x.detach() for f in fields(self))
+        )

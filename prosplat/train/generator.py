@@ -59,6 +59,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.camera import Camera
@@ -235,6 +236,13 @@ class TrainConfig:
     # the generator's per-input-view depth maps vs Blender's: direct supervision of the depth
     # head (DepthSplat gets it from a pretrained depth model; see depth_loss)
     input_depth_weight: float = 0.0
+    # cross-entropy of the depth head's distribution (its 1/4-resolution logits) against
+    # Blender's input depth as a two-hot over the bracketing candidates (see depth_ce): the L1
+    # terms above reach the head through the softmax's expectation, whose gradient on a
+    # candidate is proportional to that candidate's probability, so a confident wrong peak
+    # (an object flattened into the floor behind it) gets almost none; this term pushes the
+    # true candidate up whatever mass it has. 0: off
+    input_depth_ce_weight: float = 0.0
     # how both depth terms compare depths: "inverse" (L1 of 1/z, in scene units, so scenes of
     # small depth weigh most) or "log" (L1 of log z: the relative error AbsRel scores, the same
     # for a scene at any scale)
@@ -306,6 +314,10 @@ class TrainConfig:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
         if self.grow_fine_matching < 0:
             raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
+        if self.input_depth_ce_weight < 0:
+            raise ValueError(
+                f"input_depth_ce_weight must be >= 0, got {self.input_depth_ce_weight}"
+            )
         for name in ("crop_prob", "frame_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -436,12 +448,20 @@ def render_loss(
         valid = gt_d > 0
         if valid.any():
             parts["input_depth"] = depth_error(output.depths[valid], gt_d[valid], cfg.depth_loss)
+    parts["input_depth_ce"] = zero
+    if cfg.input_depth_ce_weight > 0 and "input_depths" in batch:
+        if output.depth_logits is None:
+            raise ValueError("--input-depth-ce-weight needs a generator with a depth head")
+        parts["input_depth_ce"] = depth_ce(
+            output.depth_logits, batch["input_depths"], batch["near"], batch["far"]
+        )
     loss = (
         parts["mse"]
         + cfg.lpips_weight * parts["lpips"]
         + cfg.ssim_weight * parts["ssim"]
         + cfg.depth_weight * parts["depth"]
         + cfg.input_depth_weight * parts["input_depth"]
+        + cfg.input_depth_ce_weight * parts["input_depth_ce"]
     )
     return loss, {k: float(v.detach()) for k, v in parts.items()}
 
@@ -460,10 +480,51 @@ def depth_error(pred: Tensor, gt: Tensor, kind: str) -> Tensor:
     return (1 / pred - 1 / gt).abs().mean()
 
 
+def depth_ce(logits: Tensor, depths: Tensor, near: Tensor, far: Tensor) -> Tensor:
+    """Cross-entropy of the depth head's distribution against Blender's depth.
+
+    ``logits [B,V,D,h,w]`` over D candidates uniform in inverse depth from ``near`` to
+    ``far`` ([B] each; candidate 0 at near), ``depths [B,V,H,W]`` (0 = no surface) with H, W
+    a multiple k of h, w. Each k x k cell's target is its mean inverse depth, split between
+    the two candidates that bracket it (a two-hot whose expectation is that depth, so the
+    term agrees with the L1 terms' optimum). Cells whose footprint is not one surface (sky,
+    or depths more than 5 % apart: a silhouette, where no single candidate is right) are left
+    out; 0 when no cell is left.
+    """
+    b, v, d, h, w = logits.shape
+    k = depths.shape[-1] // w
+    if depths.shape[-2:] != (h * k, w * k) or k < 1:
+        raise ValueError(
+            f"depth_ce: depths {list(depths.shape)} are not a whole multiple of the logits' "
+            f"{h}x{w} cells"
+        )
+    g = depths.reshape(b * v, 1, h * k, w * k)  # [BV,1,H,W]
+    hi = F.max_pool2d(g, k)  # [BV,1,h,w]
+    lo = -F.max_pool2d(-g, k)  # 0 where any ray of the cell hit nothing
+    one = ((lo > 0) & (hi <= lo * 1.05))[:, 0]  # [BV,h,w]
+    if not one.any():
+        return logits.sum() * 0.0
+    inv = F.avg_pool2d(1.0 / g.clamp_min(1e-6), k)[:, 0]  # [BV,h,w] mean 1/z
+    inv_near = (1.0 / near).repeat_interleave(v)[:, None, None]  # [BV,1,1]
+    inv_far = (1.0 / far).repeat_interleave(v)[:, None, None]
+    t = ((inv - inv_far) / (inv_near - inv_far)).clamp(0, 1)  # 1 at near, 0 at far
+    pos = (1 - t) * (d - 1)  # [BV,h,w] fractional candidate index
+    below = pos.floor().clamp(max=d - 2)
+    frac = (pos - below)[:, None]  # [BV,1,h,w] weight of the candidate above
+    target = torch.zeros_like(logits.reshape(b * v, d, h, w))
+    idx = below.long()[:, None]  # [BV,1,h,w]
+    target.scatter_(1, idx, 1 - frac)
+    target.scatter_(1, idx + 1, frac)
+    logp = torch.log_softmax(logits.reshape(b * v, d, h, w), dim=1)  # [BV,D,h,w]
+    ce = -(target * logp).sum(1)  # [BV,h,w]
+    return ce[one].mean()
+
+
 def _check_packs_have_depth(ds: SceneDataset, cfg: TrainConfig) -> None:
     """A pack made with ``scenes pack --no-depth`` would silently drop the depth terms: refuse
     it when they are asked for (folders without depth are the scene's own matter)."""
-    wanted = [n for n in ("depth_weight", "input_depth_weight") if getattr(cfg, n) > 0]
+    names = ("depth_weight", "input_depth_weight", "input_depth_ce_weight")
+    wanted = [n for n in names if getattr(cfg, n) > 0]
     if not wanted:
         return
     for pack in {s[0] for s in ds.folders if isinstance(s, tuple)}:
@@ -663,9 +724,9 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     if heads:
         if cfg.ema > 0:
             raise ValueError("--ema averages prosplat generator weights, not DepthSplat heads")
-        if cfg.input_depth_weight > 0:
+        if cfg.input_depth_weight > 0 or cfg.input_depth_ce_weight > 0:
             raise ValueError(
-                "--input-depth-weight supervises the depth predictor, which stays frozen when "
+                "--input-depth-weight / --input-depth-ce-weight supervise the depth predictor, which stays frozen when "
                 "fine-tuning a DepthSplat checkpoint; drop it (--depth-weight still works)"
             )
         from prosplat.train.depthsplat_heads import load_for_tuning
