@@ -12,6 +12,8 @@
 #   scripts/screen_generator.sh NAME [STEPS]    (STEPS 0: score INIT as it is)
 #   EXTRA_ARGS / LR / SEED pass to the recipe (e.g. EXTRA_ARGS="--grow-band 9"); INIT to
 #   start elsewhere than v16 (train_generator_v17.sh's default).
+# Two threads by default; beside anything else busy (the test suite, another run) set
+# OMP_NUM_THREADS=1: two threads sharing a loaded core ran a step ~15x slower here (18 s, not 1.2).
 # -> runs/screen_NAME/: the run (checkpoint.safetensors, log.jsonl), ladder/ (ladder.md), depth.log
 # Compare with the v16 rows: scripts/screen_generator.sh v16 0 and scripts/screen_generator.sh
 # v16recipe (the recipe alone). Resumable: the same command continues the run, then scores it.
