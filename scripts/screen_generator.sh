@@ -16,7 +16,8 @@
 # OMP_NUM_THREADS=1: two threads sharing a loaded core ran a step ~15x slower here (18 s, not 1.2).
 # -> runs/screen_NAME/: the run (checkpoint.safetensors, log.jsonl), ladder/ (ladder.md), depth.log
 # Compare with the v16 rows: scripts/screen_generator.sh v16 0 and scripts/screen_generator.sh
-# v16recipe (the recipe alone). Resumable: the same command continues the run, then scores it.
+# v16recipe (the recipe alone). Resumable: the same command (the same EXTRA_ARGS) continues the
+# run, then scores it.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 P=${PROSPLAT:-.venv/bin/prosplat}
