@@ -144,6 +144,15 @@ def train_sizes(text: str) -> tuple[int, ...]:
     return sizes
 
 
+def one_surface(depths: Tensor, k: int) -> Tensor:
+    """depths [N,1,H,W] (0 = no surface) -> [N,1,H/k,W/k]: True where every ray of the k x k
+    cell hit a surface and their depths lie within 5 % of each other, i.e. the cell sees one
+    surface and its depth means something (not a blend with the sky or across an edge)."""
+    hi = F.max_pool2d(depths, k)
+    lo = -F.max_pool2d(-depths, k)  # 0 where any ray of the cell hit nothing
+    return (lo > 0) & (hi <= lo * 1.05)
+
+
 def resize_batch(
     batch: dict[str, Tensor], size: int, target_size: int | None = None
 ) -> dict[str, Tensor]:
@@ -155,8 +164,6 @@ def resize_batch(
     5 %, else 0 (no supervision across depth edges or where part of it hit nothing, where a
     blend is no surface at all).
     """
-    import torch.nn.functional as F
-
     from prosplat.generator.cost_volume import scale_intrinsics
 
     h, w = batch["input_images"].shape[-2:]
@@ -178,11 +185,8 @@ def resize_batch(
         if f"{group}_depths" not in batch:
             continue
         d = batch[f"{group}_depths"].flatten(0, 1)[:, None]  # [BM,1,H,W]
-        k = h // s
-        hi = F.max_pool2d(d, k)
-        lo = -F.max_pool2d(-d, k)  # 0 where any ray of the footprint hit nothing
         mid = F.interpolate(d, size=(s, s), mode="bilinear", align_corners=False)
-        ok = (lo > 0) & (hi <= lo * 1.05)  # one surface: a blend with the sky is no depth
+        ok = one_surface(d, h // s)  # a blend with the sky or across an edge is no depth
         shape = (*batch[f"{group}_depths"].shape[:2], s, s)
         out[f"{group}_depths"] = torch.where(ok, mid, torch.zeros_like(mid))[:, 0].view(shape)
     return out
@@ -499,9 +503,7 @@ def depth_ce(logits: Tensor, depths: Tensor, near: Tensor, far: Tensor) -> Tenso
             f"{h}x{w} cells"
         )
     g = depths.reshape(b * v, 1, h * k, w * k)  # [BV,1,H,W]
-    hi = F.max_pool2d(g, k)  # [BV,1,h,w]
-    lo = -F.max_pool2d(-g, k)  # 0 where any ray of the cell hit nothing
-    one = ((lo > 0) & (hi <= lo * 1.05))[:, 0]  # [BV,h,w]
+    one = one_surface(g, k)[:, 0]  # [BV,h,w]
     if not one.any():
         return logits.sum() * 0.0
     inv = F.avg_pool2d(1.0 / g.clamp_min(1e-6), k)[:, 0]  # [BV,h,w] mean 1/z
@@ -726,8 +728,9 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             raise ValueError("--ema averages prosplat generator weights, not DepthSplat heads")
         if cfg.input_depth_weight > 0 or cfg.input_depth_ce_weight > 0:
             raise ValueError(
-                "--input-depth-weight / --input-depth-ce-weight supervise the depth predictor, which stays frozen when "
-                "fine-tuning a DepthSplat checkpoint; drop it (--depth-weight still works)"
+                "--input-depth-weight / --input-depth-ce-weight supervise the depth predictor, "
+                "which stays frozen when fine-tuning a DepthSplat checkpoint; drop them "
+                "(--depth-weight still works)"
             )
         from prosplat.train.depthsplat_heads import load_for_tuning
 
