@@ -697,15 +697,6 @@ def build_parser() -> argparse.ArgumentParser:
         "LPIPS (N 1-3; copied into the weights file) to the monocular branch, entering through "
         "zero weights so training starts from the init's exact outputs (default 0: off)",
     )
-    tg.add_argument(
-        "--grow-two-surface",
-        action="store_true",
-        default=defaults.grow_two_surface,
-        help="with --init prosplat weights: let the depth refiner choose per pixel between "
-        "the near and far surface of its 1/4-resolution cell (sharper silhouettes than one "
-        "upsampled depth per cell), entering through a zero convolution so training starts "
-        "from the init's exact outputs",
-    )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)
     from prosplat.cli_improve import add_eval_parser, add_train_parsers

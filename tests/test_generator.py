@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import replace
 
 import pytest
 import torch
@@ -23,7 +22,6 @@ from prosplat.generator.cost_volume import (
 )
 from prosplat.pipeline import ProSplat, near_far_from_cameras
 from prosplat.render.projection import quat_to_rotmat
-from prosplat.train.generator import TrainConfig
 
 # Smaller than TINY so every test runs in well under a second on 2 cores; SH degree 1 and k=2
 # neighbours so that the higher-SH head and the k-nearest selection are exercised.
@@ -248,9 +246,9 @@ def test_fine_matching_adds_a_half_resolution_volume_that_gets_gradients():
         GeneratorConfig(fine_matching_channels=-1)
 
 
-def grown_then_trained(base: GeneratorConfig, grow, *args):
+def grown_then_trained(base: GeneratorConfig, grow, arg):
     """Trained-looking weights of ``base`` (every tensor perturbed from its init) grown by
-    ``grow(base, state, *args)``: checks the grown network gives the same depths and Gaussians,
+    ``grow(base, state, arg)``: checks the grown network gives the same depths and Gaussians,
     then takes one render-loss backward pass through it. -> (old state, grown config, grown
     state, grown network with gradients)."""
     torch.manual_seed(3)
@@ -258,7 +256,7 @@ def grown_then_trained(base: GeneratorConfig, grow, *args):
     with torch.no_grad():
         for p in old.parameters():
             p.add_(0.05 * torch.randn_like(p))
-    cfg, state = grow(base, old.state_dict(), *args)
+    cfg, state = grow(base, old.state_dict(), arg)
     new = Generator(cfg).eval()
     new.load_state_dict(state)
     cams = rig(3, 32, 32)
@@ -292,61 +290,6 @@ def test_grow_fine_matching_reproduces_the_trained_network_then_learns():
         grow_fine_matching(cfg, state, 4)
     with pytest.raises(ValueError, match="channels"):
         grow_fine_matching(SMALL, old, 0)
-
-
-def test_split_surfaces_finds_both_modes_and_recombines_to_the_expectation():
-    """A cell whose mass sits on two candidates gets those two as its surfaces and the near
-    one's share as its mass; mass·near + (1 - mass)·far is the expectation for any logits;
-    a one-candidate cell's parts both take that candidate (no NaN from an empty part)."""
-    from prosplat.generator.depth_head import split_surfaces
-
-    d = 9
-    t_cand = torch.linspace(1.0, 0.0, d)
-    logits = torch.full((1, d, 1, 3), -50.0)
-    logits[0, 2, 0, 0] = math.log(0.3)  # 30 % on candidate 2 (near), 70 % on candidate 7
-    logits[0, 7, 0, 0] = math.log(0.7)
-    logits[0, 4, 0, 1] = 0.0  # all on candidate 4
-    logits[0, :, 0, 2] = torch.randn(d, generator=torch.Generator().manual_seed(0))
-    s = split_surfaces(logits)  # [1,3,1,3]
-    torch.testing.assert_close(
-        s[0, :, 0, 0], torch.stack([t_cand[2], t_cand[7], torch.tensor(0.3)])
-    )
-    torch.testing.assert_close(s[0, :2, 0, 1], t_cand[4].expand(2), atol=1e-5, rtol=0)
-    prob = torch.softmax(logits, 1)
-    t_mean = (prob * t_cand[None, :, None, None]).sum(1)  # [1,1,3]
-    recombined = s[:, 2] * s[:, 0] + (1 - s[:, 2]) * s[:, 1]
-    torch.testing.assert_close(recombined, t_mean, atol=1e-5, rtol=0)
-    assert (s[:, 0] >= t_mean - 1e-6).all() and (s[:, 1] <= t_mean + 1e-6).all()
-
-
-def test_grow_two_surface_reproduces_the_trained_network_then_learns():
-    """Growing weights by the two-surface choice gives the same Gaussians (its convolution is
-    zero), a gradient step opens it, and a fully open choice puts a pixel on one of its
-    cell's surfaces."""
-    from prosplat.generator.depth_head import DepthRefiner
-    from prosplat.generator.grow import grow_two_surface
-
-    old, cfg, state, new = grown_then_trained(SMALL, grow_two_surface)
-    assert cfg == replace(SMALL, two_surface=True)
-    assert new.refiner.choose.weight.grad.abs().max() > 0
-    with pytest.raises(ValueError, match="already"):
-        grow_two_surface(cfg, state)
-    with pytest.raises(ValueError, match="grow_two_surface"):
-        TrainConfig(data="x", out="y", grow_two_surface=True)
-
-    refiner = DepthRefiner(8, 4, two_surface=True).eval()
-    with torch.no_grad():
-        refiner.delta.weight.zero_()  # no residual: t is what the choice gives
-        refiner.choose.bias.fill_(30.0)  # every pixel takes its near surface
-    h = 4
-    surfaces = torch.stack([torch.full((h, h), 0.8), torch.full((h, h), 0.2),
-                            torch.full((h, h), 0.5)])[None]  # fmt: skip
-    t = torch.full((1, 1, h, h), 0.5)  # the expectation of those two at mass 0.5
-    image, hidden = torch.zeros(1, 3, 4 * h, 4 * h), torch.randn(1, 8, h, h)
-    t_ref, _, _ = refiner(image, t, torch.ones_like(t), hidden, surfaces)
-    torch.testing.assert_close(t_ref, torch.full_like(t_ref, 0.8), atol=1e-4, rtol=0)
-    with pytest.raises(ValueError, match="two_surface"):
-        refiner(image, t, torch.ones_like(t), hidden)
 
 
 def test_grow_alexnet_reproduces_the_trained_network_then_learns(tmp_path):

@@ -58,12 +58,6 @@ class GeneratorConfig:
             halves the resolution); three or more levels.
         refine_channels: channels of the full-resolution refinement network whose features
             also feed the Gaussian adapter.
-        two_surface: the depth refiner also gets each 1/4-resolution cell's two surfaces, the
-            means of its depth distribution's near and far parts (split at the expectation),
-            and lets every full-resolution pixel choose between them
-            (:func:`prosplat.generator.depth_head.split_surfaces`), because bilinear
-            upsampling of one value per cell leaves a ramp across every silhouette. False
-            (v1-v16 weights) leaves it out.
         sh_degree: spherical-harmonic degree of the Gaussians (0-3).
         scale_factor_min, scale_factor_max: bounds of the learned factor that multiplies the
             pixel footprint ``depth / f`` to give a Gaussian's scale (geometric-mean init, 1.0
@@ -88,7 +82,6 @@ class GeneratorConfig:
     alexnet_layers: int = 0
     unet_channels: tuple[int, ...] = (32, 40, 48, 64)
     refine_channels: int = 16
-    two_surface: bool = False
     sh_degree: int = 0
     scale_factor_min: float = 0.25
     scale_factor_max: float = 4.0

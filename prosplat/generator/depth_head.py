@@ -118,42 +118,10 @@ class DepthHead(nn.Module):
         return t, conf, hidden, logits
 
 
-def split_surfaces(logits: Tensor) -> Tensor:
-    """The two surfaces of each cell's depth distribution: ``logits [N,D,h,w]`` (candidates
-    near to far, as :class:`DepthHead` returns them) -> [N,3,h,w]: t of the near part's mean,
-    t of the far part's mean, and the near part's mass, the parts split at the expectation t̄.
-
-    At a silhouette the cell's mass sits on the object and on what lies behind it; the
-    expectation, which is all that one value per cell can carry, is a depth between the two
-    that no surface has, and upsampled it becomes a ramp that other views see as a skirt
-    (BENCHMARKS "Depth: what the 128-px views lose"). ``mass·t_near + (1 - mass)·t_far`` is
-    t̄ exactly, so a refiner that starts from the mass as its choice starts from t̄. A part
-    with (almost) no mass takes t̄ as its mean."""
-    d = logits.shape[1]
-    prob = torch.softmax(logits, dim=1)  # [N,D,h,w]
-    t_cand = torch.linspace(1.0, 0.0, d, dtype=logits.dtype, device=logits.device)
-    t_cand = t_cand[None, :, None, None]  # [1,D,1,1]
-    t_mean = (prob * t_cand).sum(1, keepdim=True)  # [N,1,h,w]
-    near = (t_cand > t_mean).to(prob.dtype)  # [N,D,h,w]
-    p_near = prob * near
-    p_far = prob - p_near
-    tiny = 1e-6
-    mass = p_near.sum(1, keepdim=True)  # [N,1,h,w]
-    t_near = ((p_near * t_cand).sum(1, keepdim=True) + tiny * t_mean) / (mass + tiny)
-    t_far = ((p_far * t_cand).sum(1, keepdim=True) + tiny * t_mean) / (1 - mass + tiny)
-    return torch.cat([t_near, t_far, mass], dim=1)
-
-
 class DepthRefiner(nn.Module):
-    """Upsample t and confidence to full resolution and correct t with a learned residual.
+    """Upsample t and confidence to full resolution and correct t with a learned residual."""
 
-    With ``two_surface`` it also chooses, per full-resolution pixel, between its cell's two
-    surfaces (:func:`split_surfaces`): a choice weight starts at the near part's mass, which
-    reproduces the upsampled expectation, and a convolution of the refiner's features (zero at
-    the start) moves it toward either surface, so that a pixel on either side of a silhouette
-    can take that side's depth instead of a value in between."""
-
-    def __init__(self, hidden_channels: int, channels: int, two_surface: bool = False) -> None:
+    def __init__(self, hidden_channels: int, channels: int) -> None:
         super().__init__()
         self.reduce = nn.Conv2d(hidden_channels, channels, 1)
         self.body = nn.Sequential(ConvNormAct(3 + 2 + channels, channels), ResBlock(channels))
@@ -161,25 +129,12 @@ class DepthRefiner(nn.Module):
         with torch.no_grad():  # start close to plain bilinear upsampling
             self.delta.weight.mul_(0.1)
             self.delta.bias.zero_()
-        self.choose = None
-        if two_surface:  # features + (t_near, t_far, mass) -> the choice's logit offset
-            self.choose = nn.Conv2d(channels + 3, 1, 3, padding=1)
-            nn.init.zeros_(self.choose.weight)
-            nn.init.zeros_(self.choose.bias)
 
     def forward(
-        self,
-        image: Tensor,
-        t: Tensor,
-        conf: Tensor,
-        hidden: Tensor,
-        surfaces: Tensor | None = None,
+        self, image: Tensor, t: Tensor, conf: Tensor, hidden: Tensor
     ) -> tuple[Tensor, Tensor, Tensor]:
-        """image [N,3,H,W] in [-1,1]; t, conf [N,1,h,w]; hidden [N,U0,h,w]; surfaces
-        [N,3,h,w] (:func:`split_surfaces`) exactly when built with ``two_surface`` ->
+        """image [N,3,H,W] in [-1,1]; t, conf [N,1,h,w]; hidden [N,U0,h,w] ->
         t [N,1,H,W] in (0,1), confidence [N,1,H,W], features [N,R,H,W]."""
-        if (surfaces is None) != (self.choose is None):
-            raise ValueError("DepthRefiner: pass surfaces exactly when built with two_surface")
         size = image.shape[-2:]
 
         def up(x: Tensor) -> Tensor:
@@ -189,10 +144,5 @@ class DepthRefiner(nn.Module):
         f_up = up(self.reduce(hidden))  # [N,R,H,W]
         feat = self.body(torch.cat([image, t_up, conf_up, f_up], dim=1))  # [N,R,H,W]
         eps = 1e-4  # t of exactly 0 or 1 (all mass on the end candidate) has an infinite logit
-        if surfaces is not None:
-            s_up = up(surfaces)  # [N,3,H,W]: t_near, t_far, mass
-            w0 = s_up[:, 2:3].clamp(eps, 1 - eps)  # [N,1,H,W]
-            w = torch.sigmoid(torch.logit(w0) + self.choose(torch.cat([feat, s_up], dim=1)))
-            t_up = t_up + (w - w0) * (s_up[:, :1] - s_up[:, 1:2])  # t_up itself at the start
         t_ref = torch.sigmoid(torch.logit(t_up.clamp(eps, 1 - eps)) + self.delta(feat))
         return t_ref, conf_up, feat

@@ -3,8 +3,8 @@
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
 does not. When a change adds a module (the 1/2-resolution cost volume of
 ``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``; the images' own
-plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``; the
-refiner's choice between two surfaces of ``two_surface``), the trained
+plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``), the
+trained
 weights are copied into the larger network and the new module enters through weights that
 start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
 only has to learn what the new input adds.
@@ -162,24 +162,4 @@ def grow_band(
         raise ValueError("grow_band: the weights do not match the network of their config")
     out = {key: value.clone() for key, value in state.items()}
     out.update({key: value for key, value in grown.items() if key.startswith("band.")})
-    return grown_config, out
-
-
-def grow_two_surface(
-    config: GeneratorConfig, state: dict[str, Tensor]
-) -> tuple[GeneratorConfig, dict[str, Tensor]]:
-    """Weights of ``config`` (without it) -> the same network whose depth refiner chooses per
-    pixel between each cell's two surfaces (``two_surface``,
-    :func:`prosplat.generator.depth_head.split_surfaces`), and a state dict that gives the
-    same outputs: the choice's convolution is zero (its init), so every pixel starts at the
-    upsampled expectation; its inputs are live, so gradients open it from the first step."""
-    if config.two_surface:
-        raise ValueError("grow_two_surface: the weights already choose between two surfaces")
-    grown_config = replace(config, two_surface=True)
-    grown = Generator(grown_config).state_dict()
-    new = {key for key in grown if key.startswith("refiner.choose.")}
-    if set(state) != set(grown) - new:
-        raise ValueError("grow_two_surface: the weights do not match the network of their config")
-    out = {key: value.clone() for key, value in state.items()}
-    out.update({key: torch.zeros_like(grown[key]) for key in new})
     return grown_config, out

@@ -24,7 +24,7 @@ from prosplat.generator.cost_volume import (
     plane_sweep_cost_volume,
     scale_intrinsics,
 )
-from prosplat.generator.depth_head import DepthHead, DepthRefiner, split_surfaces
+from prosplat.generator.depth_head import DepthHead, DepthRefiner
 from prosplat.generator.encoder import FeatureEncoder
 from prosplat.generator.image_cost import image_cost_volume
 from prosplat.generator.monocular import MonocularBranch
@@ -74,7 +74,7 @@ class Generator(nn.Module):
             fine_cost=c.fine_matching_channels > 0,
             image_cost=c.image_matching_window > 0,
         )
-        self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels, c.two_surface)
+        self.refiner = DepthRefiner(c.unet_channels[0], c.refine_channels)
         self.band = BandRefiner(c.band_candidates, c.refine_channels) if c.band_candidates else None
         self.adapter = GaussianAdapter(
             c.refine_channels,
@@ -288,9 +288,8 @@ class Generator(nn.Module):
         t, conf, hidden, logits = self.depth_head(
             cost.flatten(0, 1), mono, feats.flatten(0, 1), fine_cost, image_cost
         )  # [BV,1,Hm/4,Wm/4] x2, [BV,U0,Hm/4,Wm/4], [BV,D,Hm/4,Wm/4]
-        surfaces = split_surfaces(logits) if cfg.two_surface else None  # [BV,3,Hm/4,Wm/4]
         t, conf, rfeat = self.refiner(
-            xm.flatten(0, 1), t, conf, hidden, surfaces
+            xm.flatten(0, 1), t, conf, hidden
         )  # [BV,1,Hm,Wm] x2, [BV,R,Hm,Wm]
         inv_near = (1.0 / near).repeat_interleave(v)[:, None, None, None]  # [BV,1,1,1]
         inv_far = (1.0 / far).repeat_interleave(v)[:, None, None, None]
