@@ -55,6 +55,10 @@ def test_the_right_depth_agrees_a_floater_is_seen_through_and_a_point_behind_is_
     assert right.shape[0] == AGREEMENT_CHANNELS
     assert right[0].median() < 0.02  # the same texture from both views
     assert (right[1] == 0).all() and (right[2] == 1).all()
+    strided = images.transpose(-1, -2).contiguous().transpose(-1, -2)  # a training crop's layout
+    assert not strided.is_contiguous()
+    full = view_agreement(images, depth, K, w2c, nbr)
+    torch.testing.assert_close(view_agreement(strided, depth, K, w2c, nbr), full)
 
     floater = depth.clone()
     floater[:, 0] *= 0.6  # the reference's points 40 % nearer: in front of the plane

@@ -79,7 +79,7 @@ def view_agreement(
         ).view(b, v, 4, h * w)  # [B,V,4,HW]
         ratio = z_j / sampled[:, :, 3].clamp(min=1e-6)  # the point's depth / what j sees
         visible = inside & (ratio < 1 + tau)
-        diff = (sampled[:, :, :3] - images.view(b, v, 3, h * w)).abs().mean(2)  # [B,V,HW]
+        diff = (sampled[:, :, :3] - images.reshape(b, v, 3, h * w)).abs().mean(2)  # [B,V,HW]
         colour_sum += diff * visible
         seen += visible
         front += inside & (ratio < 1 - tau)
