@@ -697,15 +697,6 @@ def build_parser() -> argparse.ArgumentParser:
         "LPIPS (N 1-3; copied into the weights file) to the monocular branch, entering through "
         "zero weights so training starts from the init's exact outputs (default 0: off)",
     )
-    tg.add_argument(
-        "--grow-view-agreement",
-        action="store_true",
-        default=defaults.grow_view_agreement,
-        help="with --init prosplat weights: show the Gaussian adapter how the other input "
-        "views agree with each pixel's Gaussian at its depth (colour difference, free-space "
-        "violations, depth agreement), so opacities can learn which view to trust; it enters "
-        "through zero weights so training starts from the init's exact outputs",
-    )
     tg.add_argument("--device", default=defaults.device, help="auto | cpu | cuda | cuda:N | mps")
     tg.set_defaults(func=cmd_train_generator)
     from prosplat.cli_improve import add_eval_parser, add_train_parsers

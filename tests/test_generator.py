@@ -246,9 +246,9 @@ def test_fine_matching_adds_a_half_resolution_volume_that_gets_gradients():
         GeneratorConfig(fine_matching_channels=-1)
 
 
-def grown_then_trained(base: GeneratorConfig, grow, *args):
+def grown_then_trained(base: GeneratorConfig, grow, arg):
     """Trained-looking weights of ``base`` (every tensor perturbed from its init) grown by
-    ``grow(base, state, *args)``: checks the grown network gives the same depths and Gaussians,
+    ``grow(base, state, arg)``: checks the grown network gives the same depths and Gaussians,
     then takes one render-loss backward pass through it. -> (old state, grown config, grown
     state, grown network with gradients)."""
     torch.manual_seed(3)
@@ -256,7 +256,7 @@ def grown_then_trained(base: GeneratorConfig, grow, *args):
     with torch.no_grad():
         for p in old.parameters():
             p.add_(0.05 * torch.randn_like(p))
-    cfg, state = grow(base, old.state_dict(), *args)
+    cfg, state = grow(base, old.state_dict(), arg)
     new = Generator(cfg).eval()
     new.load_state_dict(state)
     cams = rig(3, 32, 32)

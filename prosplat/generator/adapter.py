@@ -104,18 +104,13 @@ class GaussianAdapter(nn.Module):
         scale_factor_min: float,
         scale_factor_max: float,
         max_offset_px: float,
-        agreement_channels: int = 0,
     ) -> None:
         super().__init__()
-        self.agreement_channels = agreement_channels
         self.k = (sh_degree + 1) ** 2
         self.log_scale_min = math.log(scale_factor_min)
         self.log_scale_max = math.log(scale_factor_max)
         self.max_offset_px = max_offset_px
-        # input: features, confidence, rgb, then the views' agreement maps when given
-        self.hidden = nn.Sequential(
-            nn.Conv2d(channels + 1 + 3 + agreement_channels, channels, 1), nn.GELU()
-        )
+        self.hidden = nn.Sequential(nn.Conv2d(channels + 1 + 3, channels, 1), nn.GELU())
         self.head = nn.Conv2d(channels, sum(self.HEAD), 1)
         with torch.no_grad():  # start near neutral: no offset, factor ~1, identity, pixel colour
             self.head.weight.mul_(0.1)
@@ -127,24 +122,12 @@ class GaussianAdapter(nn.Module):
             nn.init.zeros_(self.sh_rest.bias)
 
     def forward(
-        self,
-        feats: Tensor,
-        conf: Tensor,
-        rgb: Tensor,
-        depth: Tensor,
-        K: Tensor,
-        w2c: Tensor,
-        agreement: Tensor | None = None,
+        self, feats: Tensor, conf: Tensor, rgb: Tensor, depth: Tensor, K: Tensor, w2c: Tensor
     ) -> PixelGaussians:
         """feats [N,R,H,W]; conf [N,1,H,W]; rgb [N,3,H,W] in [0,1]; depth [N,H,W] (z);
-        K [N,3,3] at full resolution; w2c [N,4,4]; agreement [N,A,H,W]
-        (:func:`prosplat.generator.agreement.view_agreement`) exactly when built with
-        ``agreement_channels`` A > 0."""
-        if (agreement is None) != (self.agreement_channels == 0):
-            raise ValueError("GaussianAdapter: pass agreement exactly when built with it")
+        K [N,3,3] at full resolution; w2c [N,4,4]."""
         n, _, h, w = feats.shape
-        parts = [feats, conf, rgb] + ([] if agreement is None else [agreement])
-        hid = self.hidden(torch.cat(parts, dim=1))  # [N,R,H,W]
+        hid = self.hidden(torch.cat([feats, conf, rgb], dim=1))  # [N,R,H,W]
         raw = self.head(hid).permute(0, 2, 3, 1)  # [N,H,W,13]
         r_op, r_off, r_scale, r_rot, r_dc = raw.split(self.HEAD, dim=-1)
 

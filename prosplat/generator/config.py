@@ -58,11 +58,6 @@ class GeneratorConfig:
             halves the resolution); three or more levels.
         refine_channels: channels of the full-resolution refinement network whose features
             also feed the Gaussian adapter.
-        view_agreement: the Gaussian adapter also sees, per pixel at its predicted depth, how
-            the neighbour views agree with it (colour difference, free-space violations,
-            depth agreement; :mod:`prosplat.generator.agreement`), so that opacities can
-            learn which view to trust where views overlap, what refinement otherwise fits
-            per scene. False (v1-v16 weights) leaves it out.
         sh_degree: spherical-harmonic degree of the Gaussians (0-3).
         scale_factor_min, scale_factor_max: bounds of the learned factor that multiplies the
             pixel footprint ``depth / f`` to give a Gaussian's scale (geometric-mean init, 1.0
@@ -87,7 +82,6 @@ class GeneratorConfig:
     alexnet_layers: int = 0
     unet_channels: tuple[int, ...] = (32, 40, 48, 64)
     refine_channels: int = 16
-    view_agreement: bool = False
     sh_degree: int = 0
     scale_factor_min: float = 0.25
     scale_factor_max: float = 4.0

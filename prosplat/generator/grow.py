@@ -3,8 +3,8 @@
 Training a generator from scratch costs CPU hours that a fine-tune from the shipped weights
 does not. When a change adds a module (the 1/2-resolution cost volume of
 ``fine_matching_channels``; the frozen AlexNet features of ``alexnet_layers``; the images' own
-plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``; the
-views' agreement maps of ``view_agreement``), the trained
+plane sweep of ``image_matching_window``; the learned depth sweep of ``band_candidates``), the
+trained
 weights are copied into the larger network and the new module enters through weights that
 start at zero, so step 0 of the fine-tune reproduces the old generator exactly and training
 only has to learn what the new input adds.
@@ -162,31 +162,4 @@ def grow_band(
         raise ValueError("grow_band: the weights do not match the network of their config")
     out = {key: value.clone() for key, value in state.items()}
     out.update({key: value for key, value in grown.items() if key.startswith("band.")})
-    return grown_config, out
-
-
-#: The adapter's first 1x1 conv: its input is concat(features, confidence, rgb, [agreement]).
-_ADAPTER_IN = "adapter.hidden.0.weight"
-
-
-def grow_view_agreement(
-    config: GeneratorConfig, state: dict[str, Tensor]
-) -> tuple[GeneratorConfig, dict[str, Tensor]]:
-    """Weights of ``config`` (without it) -> the same network whose Gaussian adapter also sees
-    the views' agreement maps (``view_agreement``, :mod:`prosplat.generator.agreement`), and a
-    state dict that gives the same outputs: the adapter's input channels they occupy get zero
-    weights. The maps have no weights, so gradients reach those channels from the first step."""
-    if config.view_agreement:
-        raise ValueError("grow_view_agreement: the weights already have the agreement maps")
-    grown_config = replace(config, view_agreement=True)
-    grown = Generator(grown_config).state_dict()
-    if set(state) != set(grown):
-        raise ValueError(
-            "grow_view_agreement: the weights do not match the network of their config"
-        )
-    out = {key: value.clone() for key, value in state.items()}
-    old = state[_ADAPTER_IN]  # [R, R+4, 1, 1]
-    w = torch.zeros_like(grown[_ADAPTER_IN])  # [R, R+4+A, 1, 1]
-    w[:, : old.shape[1]] = old
-    out[_ADAPTER_IN] = w
     return grown_config, out

@@ -16,7 +16,6 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from prosplat.generator.adapter import GaussianAdapter
-from prosplat.generator.agreement import AGREEMENT_CHANNELS, view_agreement
 from prosplat.generator.band import BandRefiner
 from prosplat.generator.config import SIZE_MULTIPLE, TINY, GeneratorConfig
 from prosplat.generator.cost_volume import (
@@ -83,7 +82,6 @@ class Generator(nn.Module):
             c.scale_factor_min,
             c.scale_factor_max,
             c.max_offset_px,
-            AGREEMENT_CHANNELS if c.view_agreement else 0,
         )
 
     def num_parameters(self) -> int:
@@ -307,20 +305,8 @@ class Generator(nn.Module):
             inv_far[:, 0] + t[:, 0] * (inv_near - inv_far)[:, 0]
         )  # [BV,H,W] in (near, far)
 
-        agreement = None
-        if cfg.view_agreement:  # [BV,3,H,W], at the detached depth
-            agreement = view_agreement(
-                images, depth.detach().view(b, v, h, w), K, w2c,
-                nearest_views(w2c, cfg.cost_volume_views),
-            ).flatten(0, 1)  # fmt: skip
         g = self.adapter(
-            rfeat,
-            conf,
-            images.flatten(0, 1),
-            depth,
-            K.flatten(0, 1),
-            w2c.flatten(0, 1),
-            agreement,
+            rfeat, conf, images.flatten(0, 1), depth, K.flatten(0, 1), w2c.flatten(0, 1)
         )  # per-pixel [BV,H,W,...]
         n = v * h * w
         return GeneratorOutput(

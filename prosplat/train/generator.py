@@ -290,9 +290,6 @@ class TrainConfig:
     # with a prosplat ``init`` without it: add the learned depth sweep over this many band
     # depths after the depth refiner, through a zero convolution (grow.grow_band); 0 = off
     grow_band: int = 0
-    # with a prosplat ``init`` without them: show the Gaussian adapter the views' agreement
-    # maps through zero weights (grow.grow_view_agreement); False = off
-    grow_view_agreement: bool = False
     grad_clip: float = 0.5
     # > 0: the saved weights are an exponential moving average of the trained ones with this
     # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
@@ -344,14 +341,7 @@ class TrainConfig:
             )
         if self.grow_band < 0 or self.grow_band == 1:
             raise ValueError(f"grow_band is a candidate count >= 2 (0: off), got {self.grow_band}")
-        grows = (
-            "grow_fine_matching",
-            "grow_alexnet",
-            "grow_image_matching",
-            "grow_band",
-            "grow_view_agreement",
-        )
-        for name in grows:
+        for name in ("grow_fine_matching", "grow_alexnet", "grow_image_matching", "grow_band"):
             if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
                 raise ValueError(f"{name} needs --init with prosplat generator weights")
 
@@ -749,13 +739,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         pipe = None
     else:
         init_state = None
-        if (
-            cfg.grow_fine_matching
-            or cfg.grow_alexnet
-            or cfg.grow_image_matching
-            or cfg.grow_band
-            or cfg.grow_view_agreement
-        ):
+        if cfg.grow_fine_matching or cfg.grow_alexnet or cfg.grow_image_matching or cfg.grow_band:
             model_config, init_state = _grown_init(cfg)
         elif cfg.init and model_config is None:
             model_config, init_state = _init_weights(cfg)
@@ -961,8 +945,7 @@ def _init_weights(cfg: TrainConfig):
 def _grown_init(cfg: TrainConfig):
     """(config, weights) of ``cfg.init`` grown by ``cfg.grow_fine_matching`` fine-matching
     channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by the image cost volume of
-    ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``, then by the agreement
-    maps of ``cfg.grow_view_agreement``; on a resume only the
+    ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``; on a resume only the
     config is used (the checkpoint holds the weights)."""
     from prosplat.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
@@ -971,7 +954,6 @@ def _grown_init(cfg: TrainConfig):
         grow_band,
         grow_fine_matching,
         grow_image_matching,
-        grow_view_agreement,
     )
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
@@ -986,8 +968,6 @@ def _grown_init(cfg: TrainConfig):
         config, state = grow_image_matching(config, state, cfg.grow_image_matching)
     if cfg.grow_band:
         config, state = grow_band(config, state, cfg.grow_band)
-    if cfg.grow_view_agreement:
-        config, state = grow_view_agreement(config, state)
     return config, state
 
 
