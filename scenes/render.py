@@ -261,11 +261,27 @@ def render_scene(
         write_transforms(tmp / "transforms.json", frames, meta)
         if blend is not None:
             save_blend(blend, cam_obj, frames)
-        os.rename(tmp, final)  # atomic on one filesystem: the folder appears complete or not at all
+        _publish(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def _publish(tmp: Path, final: Path) -> None:
+    """Move a finished scene's folder ``tmp`` to ``final`` by one rename (atomic on one
+    filesystem: the folder appears complete or not at all). When another process published
+    the same scene while this one rendered it (two runs of one seed side by side, or a run
+    started before a stopped one's last worker finished), the folder already there is kept
+    and this copy dropped: both are the same seed's render, and the run goes on instead of
+    failing the scene. A folder there without its transforms.json is no finished scene, and
+    the error stands."""
+    try:
+        os.rename(tmp, final)
+    except OSError:
+        if not (final / "transforms.json").is_file():
+            raise
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def save_blend(path: Path, template, frames: list[Frame]) -> None:

@@ -264,3 +264,27 @@ def test_scenes_list_reports_split_family_and_overlap(tabletop):
     cells = [c.strip() for c in row.strip("|").split("|")]
     overlap = load_scene(tabletop[0]).meta["mean_input_overlap"]
     assert cells[1:5] == ["train", "tabletop", "-", "2"] and float(cells[6]) == round(overlap, 2)
+
+
+def test_a_scene_published_meanwhile_by_another_run_is_kept(tmp_path):
+    """Two runs of one seed side by side: the second to finish keeps the first's folder and
+    drops its own copy instead of failing (the rename onto a non-empty folder raised and
+    stopped a render of rounds); a folder there that is no finished scene still raises."""
+    from scenes.render import _publish
+
+    def scene(path: Path, text: str) -> Path:
+        path.mkdir()
+        (path / "transforms.json").write_text(text)
+        return path
+
+    final = tmp_path / "open_000001"
+    _publish(scene(tmp_path / ".open_000001.partial-1", "first"), final)
+    assert (final / "transforms.json").read_text() == "first"
+    mine = scene(tmp_path / ".open_000001.partial-2", "second")
+    _publish(mine, final)
+    assert (final / "transforms.json").read_text() == "first" and not mine.exists()
+
+    broken = tmp_path / "open_000002"
+    (broken / "images").mkdir(parents=True)
+    with pytest.raises(OSError):
+        _publish(scene(tmp_path / ".open_000002.partial-3", "third"), broken)
