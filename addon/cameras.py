@@ -97,13 +97,15 @@ def is_used(obj) -> bool:
 
 def input_frames(collection, scene, used_only=False, names=None) -> list[dict[str, Any]]:
     """Frames of the cameras in ``collection`` (``used_only``: those whose *Use* box is
-    checked; ``names``: those named, where they still exist); raises naming each camera
-    without an image."""
+    checked; ``names``: those named, where they still exist, in the order of ``names``, which
+    is the order a reconstruction numbered its views in); raises naming each camera without
+    an image."""
     objs = input_cameras(collection)
     if used_only:
         objs = [o for o in objs if is_used(o)]
     if names:
-        wanted = [o for o in objs if o.name in set(names)]
+        order = {str(n): i for i, n in enumerate(names)}
+        wanted = sorted((o for o in objs if o.name in order), key=lambda o: order[o.name])
         objs = wanted or objs  # renamed or deleted since: every camera lends texture
     frames = [input_frame(o, scene) for o in objs]
     missing = [f["name"] for f in frames if not f["image"]]

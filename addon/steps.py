@@ -17,6 +17,9 @@ NEAR_PROP, FAR_PROP = "prosplat_near", "prosplat_far"
 TARGETS_PROP = "prosplat_targets"  # on an input collection: its collection of target cameras
 SPLIT_PROP, KIND_PROP = "prosplat_split", "prosplat_target_kind"  # on imported cameras
 VIEWS_PROP = "prosplat_views"  # on a Gaussian object: the input views it was made from
+#: the point attribute with each Gaussian's input view (an index into VIEWS_PROP's names;
+#: prosplat.ply.VIEW_PROPERTY), by which rendered views favour the input nearest them
+VIEW_ATTR = "prosplat_view"
 MADE_SIZE_PROP = "prosplat_made_size"  # on a Gaussian object: [w, h] the generator ran at
 #: rendering this much above the size the Gaussians were made at shows gaps between splats
 ABOVE_INPUT_TOLERANCE = 1.1
@@ -282,9 +285,14 @@ def render_job(gaussians, targets, scene, output_dir: str, context=None, inputs=
         inputs = bpy.data.collections.get(gaussians.get(pointcloud.INPUTS_PROP, ""))
     used = gaussians.get(VIEWS_PROP)
     frames = cameras.input_frames(inputs, scene, names=used) if inputs is not None else []
+    arrays = pointcloud.read_arrays(gaussians)
+    if used is None or [f["name"] for f in frames] != [str(n) for n in used]:
+        # the Gaussians' view numbers index the cameras the reconstruction used, in its order:
+        # with one of them gone or renamed they would favour the wrong input, so none is
+        arrays.pop(VIEW_ATTR, None)
     out = resolve_dir(output_dir, "renders")
     params = {
-        "arrays": pointcloud.read_arrays(gaussians),
+        "arrays": arrays,
         "matrix_world": pointcloud.world_matrix(gaussians),
         "targets": targets,
         "inputs": frames,

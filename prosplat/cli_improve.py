@@ -54,11 +54,14 @@ def cmd_curate(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    if not 0 <= args.other_views_opacity <= 1:
+        print("prosplat train curate: --other-views-opacity must lie in [0, 1]", file=sys.stderr)
+        return 2
     path = curate(
         model, args.data, args.out, views=views, overwrite=args.overwrite, command=cmd,
         refine_steps=args.refine_steps, height=args.size, generator_height=args.generator_size,
         splat_scale=args.splat_scale, max_splat_radius=args.max_splat_radius or None,
-        first=args.first, count=args.count,
+        other_views_opacity=args.other_views_opacity, first=args.first, count=args.count,
     )  # fmt: skip
     print(f"curated set: {path.resolve()}")
     return 0
@@ -145,7 +148,7 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
 
 
 def add_train_parsers(train_sub) -> None:
-    from prosplat.enhance import MAX_SPLAT_RADIUS
+    from prosplat.enhance import MAX_SPLAT_RADIUS, OTHER_VIEWS_OPACITY
     from prosplat.train.improve import ImproveTrainConfig, JointTrainConfig
 
     cu = train_sub.add_parser(
@@ -190,6 +193,15 @@ def add_train_parsers(train_sub) -> None:
         help="each target view leaves out the splats it would draw wider than this fraction of "
         f"its shorter side, as enhanced views do (default {MAX_SPLAT_RADIUS:g}, "
         "prosplat.enhance.MAX_SPLAT_RADIUS; 0: draw every splat)",
+    )
+    cu.add_argument(
+        "--other-views-opacity",
+        type=float,
+        default=OTHER_VIEWS_OPACITY,
+        help="each target's render favours the input MORI picks for it, the other views' "
+        "Gaussians entering the colour at this fraction of their opacity, as every view does "
+        f"at inference (default {OTHER_VIEWS_OPACITY:g}, prosplat.enhance.OTHER_VIEWS_OPACITY; "
+        "1: all alike, as sets curated before 2026-11-28 were)",
     )
     cu.add_argument(
         "--size",

@@ -286,7 +286,9 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
         # the generator's own view with the holes no input saw filled from its colours, as
         # issue 12 scores it: the shipped generator (v16a) leaves those places empty, and on
         # black they read as a failure that the fill and stage 2 both paint over
-        raw = model.render(gaussians, cameras[t], enhance=False, fill_holes=True).image
+        raw = model.render(
+            gaussians, cameras[t], in_images, in_cams, enhance=False, fill_holes=True
+        ).image
         raw = raw.clamp(0, 1)
         gt, enh = images[t], view.image.clamp(0, 1)
         with torch.no_grad():

@@ -330,7 +330,7 @@ def scale_search(
             raise ValueError(f"keep must be [N] = [{out.means.shape[1]}], got {list(keep.shape)}")
         idx = idx[keep.to(idx.device)[idx]]
     g = out.gaussians(0).detach().to(dtype=torch.float32)[idx]
-    g = Gaussians(g.means, g.quats, g.scales * stride, g.opacities, g.sh)
+    g = g.with_scale_factor(stride)
     view_index = torch.div(idx, h * w, rounding_mode="floor")  # [M] each one's own view
     backend = "cpu-fused" if g.means.device.type == "cpu" else "auto"
     k = int(options.scale_candidates)
@@ -361,9 +361,8 @@ def slide_gaussians(
     centres = torch.stack([c.center for c in cameras]).to(gaussians.means)  # [V,3]
     c = centres[view_index.to(centres.device)]  # [N,3]
     means = c + factor * (gaussians.means - c)
-    return Gaussians(
-        means, gaussians.quats, gaussians.scales * factor, gaussians.opacities, gaussians.sh
-    )
+    g = gaussians
+    return Gaussians(means, g.quats, g.scales * factor, g.opacities, g.sh, g.views)
 
 
 def slide_along_rays(

@@ -40,6 +40,7 @@ import torch
 from torch import Tensor
 
 from prosplat.camera import Camera
+from prosplat.enhance import OTHER_VIEWS_OPACITY
 from prosplat.evaluate import Score, markdown_table, score_view, summarise
 from prosplat.render.hole_fill import fill_holes
 
@@ -102,6 +103,7 @@ def score_cases(
     reconstruct_kwargs: dict | None = None,
     dtype: torch.dtype = torch.float32,
     sheet: list[list[Tensor]] | None = None,
+    other_views_opacity: float = OTHER_VIEWS_OPACITY,
 ) -> list[Score]:
     """Scores (:class:`prosplat.evaluate.Score`, ``method`` in :data:`ROWS`) of every target of
     every case. The generator's Gaussians are pruned to ``budget`` as everywhere else;
@@ -110,7 +112,8 @@ def score_cases(
     without one they are left out. The ``filled`` rows (the raw render's holes filled from
     its own colours, :mod:`prosplat.render.hole_fill`) need a black ``background`` (None or
     zeros). ``sheet``, when given, receives one list of images per
-    target (ground truth, then each prediction in :data:`ROWS` order) for a contact sheet."""
+    target (ground truth, then each prediction in :data:`ROWS` order) for a contact sheet.
+    ``other_views_opacity``: as in :meth:`ProSplat.render` (1: every input alike)."""
 
     rows: list[Score] = []
     enhance = model.improver is not None
@@ -137,7 +140,8 @@ def score_cases(
                      ("paste", pasted, 0.0, 1e3 * (t3 - t2), 0)]  # fmt: skip
             for raw_name, enhanced_name, g, recon_s in recons:
                 view = model.render(g, cam, images, cams, enhance=enhance,
-                                    background=background, dtype=dtype)  # fmt: skip
+                                    background=background, dtype=dtype,
+                                    other_views_opacity=other_views_opacity)  # fmt: skip
                 t = view.timings
                 preds.append((raw_name, view.raw, recon_s, t["render_ms"], len(g)))
                 if fill:
@@ -311,7 +315,8 @@ def run(args: argparse.Namespace) -> int:
         budget = None if budget is None else (int(budget) if budget > 1 else budget)
         sheet: list[list[Tensor]] = []
         rows = score_cases(model, cases, budget=budget, background=background,
-                           reconstruct_kwargs=kwargs, sheet=sheet)  # fmt: skip
+                           reconstruct_kwargs=kwargs, sheet=sheet,
+                           other_views_opacity=args.other_views_opacity)  # fmt: skip
         table = write_results(rows, out, args.overwrite)
         if len(sets) > 1:
             per_set = per_set_table(rows)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -38,6 +38,11 @@ class Gaussians:
         scales: [N, 3] standard deviations along the rotated axes, >= 0.
         opacities: [N] in [0, 1].
         sh: [N, K, 3] spherical-harmonic colour coefficients, K = (degree + 1)^2, degree 0-3.
+        views: [N] integer, the input view that predicted each Gaussian (its index in the
+            reconstruction's input cameras), or None when unknown (a PLY from elsewhere, an
+            optimised scene). Subsets, copies and refinement keep it; views of a target use
+            it to favour the input nearest that target where the views overlap
+            (:func:`prosplat.enhance.render_view`).
     """
 
     means: Tensor
@@ -45,6 +50,10 @@ class Gaussians:
     scales: Tensor
     opacities: Tensor
     sh: Tensor
+    views: Tensor | None = None
+
+    #: the float parameters (every field but ``views``)
+    PARAMS = ("means", "quats", "scales", "opacities", "sh")
 
     def __post_init__(self) -> None:
         self.validate()
@@ -77,11 +86,12 @@ class Gaussians:
             raise ValueError(
                 f"Gaussians.sh has K={k} coefficients; K must be (degree+1)^2 for degree 0-3"
             )
-        for f in fields(self):
-            value = getattr(self, f.name)
+        self._validate_views(n)
+        for name in self.PARAMS:
+            value = getattr(self, name)
             if not value.is_floating_point():
                 raise ValueError(
-                    f"Gaussians.{f.name} must be a floating-point tensor, got {value.dtype}"
+                    f"Gaussians.{name} must be a floating-point tensor, got {value.dtype}"
                 )
             # One reduction first (a sum is finite iff every term is, barring overflow);
             # the element-wise test runs only when it is not. validate() runs per render.
@@ -91,9 +101,7 @@ class Gaussians:
                 and not torch.isfinite(value).all()
             ):
                 bad = int((~torch.isfinite(value)).reshape(n, -1).any(dim=1).sum()) if n > 0 else 0
-                raise ValueError(
-                    f"Gaussians.{f.name} contains NaN or Inf in {bad} of {n} Gaussians"
-                )
+                raise ValueError(f"Gaussians.{name} contains NaN or Inf in {bad} of {n} Gaussians")
         if n and self.scales.detach().min() < 0:
             raise ValueError(
                 f"Gaussians.scales must be >= 0 (they are standard deviations, not log-scales); "
@@ -107,10 +115,30 @@ class Gaussians:
                 "Gaussians.quats has zero-length quaternions; use (1, 0, 0, 0) for no rotation"
             )
 
+    def _validate_views(self, n: int) -> None:
+        v = self.views
+        if v is None:
+            return
+        if not isinstance(v, Tensor) or tuple(v.shape) != (n,):
+            shape = list(v.shape) if isinstance(v, Tensor) else type(v).__name__
+            raise ValueError(
+                f"Gaussians.views must be None or an integer [N={n}] tensor, got {shape}"
+            )
+        if v.is_floating_point() or v.is_complex() or v.dtype == torch.bool:
+            raise ValueError(f"Gaussians.views must be an integer tensor, got {v.dtype}")
+        if n and int(v.min()) < 0:
+            raise ValueError("Gaussians.views must be >= 0 (indices of input views)")
+
     # ---- construction -------------------------------------------------------------------
     @classmethod
     def trusted(
-        cls, means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, sh: Tensor
+        cls,
+        means: Tensor,
+        quats: Tensor,
+        scales: Tensor,
+        opacities: Tensor,
+        sh: Tensor,
+        views: Tensor | None = None,
     ) -> Gaussians:
         """Gaussians from tensors that are valid by construction, without :meth:`validate`.
 
@@ -123,7 +151,12 @@ class Gaussians:
         """
         g = cls.__new__(cls)
         g.means, g.quats, g.scales, g.opacities, g.sh = means, quats, scales, opacities, sh
+        g.views = views
         return g
+
+    def with_views(self, views: Tensor | None) -> Gaussians:
+        """The same Gaussians with ``views`` [N] (the input view of each; None: unknown)."""
+        return Gaussians(self.means, self.quats, self.scales, self.opacities, self.sh, views)
 
     @classmethod
     def empty(
@@ -154,17 +187,22 @@ class Gaussians:
 
     @staticmethod
     def cat(parts: Sequence[Gaussians]) -> Gaussians:
-        """Concatenate sets; SH are zero-padded to the highest degree among them."""
+        """Concatenate sets; SH are zero-padded to the highest degree among them. ``views``
+        are kept when every part has them, else None."""
         if not parts:
             raise ValueError("Gaussians.cat needs at least one set")
         k = max(p.sh.shape[1] for p in parts)
         sh = [torch.nn.functional.pad(p.sh, (0, 0, 0, k - p.sh.shape[1])) for p in parts]
+        views = None
+        if all(p.views is not None for p in parts):
+            views = torch.cat([p.views for p in parts])
         return Gaussians(
             torch.cat([p.means for p in parts]),
             torch.cat([p.quats for p in parts]),
             torch.cat([p.scales for p in parts]),
             torch.cat([p.opacities for p in parts]),
             torch.cat(sh),
+            views,
         )
 
     # ---- access -------------------------------------------------------------------------
@@ -179,10 +217,11 @@ class Gaussians:
             if not -len(self) <= index < len(self):  # a slice would silently give an empty set
                 raise IndexError(f"Gaussian index {index} out of range for {len(self)} Gaussians")
             index = slice(index, index + 1 if index != -1 else None)
-        parts = [getattr(self, f.name)[index] for f in fields(self)]
+        parts = [getattr(self, name)[index] for name in self.PARAMS]
+        views = None if self.views is None else self.views[index]
         if parts[0].ndim == 2:  # a subset of valid Gaussians is valid: no second read of them
-            return Gaussians.trusted(*parts)
-        return Gaussians(*parts)  # e.g. a 2-D index: the checked constructor names the shape
+            return Gaussians.trusted(*parts, views)
+        return Gaussians(*parts, views)  # e.g. a 2-D index: the checked constructor names it
 
     @property
     def sh_degree(self) -> int:
@@ -197,12 +236,13 @@ class Gaussians:
         return self.means.dtype
 
     def to(self, device=None, dtype: torch.dtype | None = None) -> Gaussians:
+        views = None if self.views is None else self.views.to(device=device)
         return Gaussians(
-            *(getattr(self, f.name).to(device=device, dtype=dtype) for f in fields(self))
+            *(getattr(self, name).to(device=device, dtype=dtype) for name in self.PARAMS), views
         )
 
     def detach(self) -> Gaussians:
-        return Gaussians(*(getattr(self, f.name).detach() for f in fields(self)))
+        return Gaussians(*(getattr(self, name).detach() for name in self.PARAMS), self.views)
 
     def with_sh_degree(self, degree: int) -> Gaussians:
         """Truncate or zero-pad the SH coefficients to ``degree``."""
@@ -212,7 +252,7 @@ class Gaussians:
             if k <= self.sh.shape[1]
             else torch.nn.functional.pad(self.sh, (0, 0, 0, k - self.sh.shape[1]))
         )
-        return Gaussians(self.means, self.quats, self.scales, self.opacities, sh)
+        return Gaussians(self.means, self.quats, self.scales, self.opacities, sh, self.views)
 
     def with_scale_factor(self, factor: float) -> Gaussians:
         """Every Gaussian's standard deviations multiplied by ``factor`` (> 0), nothing else
@@ -223,7 +263,10 @@ class Gaussians:
             raise ValueError(f"scale factor must be a finite number > 0, got {factor!r}")
         if factor == 1:
             return self
-        return Gaussians(self.means, self.quats, self.scales * factor, self.opacities, self.sh)
+        return Gaussians(
+            self.means, self.quats, self.scales * factor, self.opacities, self.sh, self.views
+        )
 
     def tensors(self) -> dict[str, Tensor]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        """The float parameters by name (``views`` is not one of them)."""
+        return {name: getattr(self, name) for name in self.PARAMS}

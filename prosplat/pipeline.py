@@ -21,7 +21,13 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
-from prosplat.enhance import MAX_SPLAT_RADIUS, EnhancedView, EnhanceOptions, render_view
+from prosplat.enhance import (
+    MAX_SPLAT_RADIUS,
+    OTHER_VIEWS_OPACITY,
+    EnhancedView,
+    EnhanceOptions,
+    render_view,
+)
 from prosplat.gaussians import Gaussians
 from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
 from prosplat.image_io import check_images
@@ -677,6 +683,7 @@ class ProSplat:
         fill_enhanced: bool = True,
         splat_scale: float = 1.0,
         max_splat_radius: float | None = MAX_SPLAT_RADIUS,
+        other_views_opacity: float = OTHER_VIEWS_OPACITY,
     ) -> EnhancedView:
         """Render ``camera`` and enhance it with the improvement model.
 
@@ -696,7 +703,10 @@ class ProSplat:
         1). ``max_splat_radius``: a filled or enhanced view leaves out the splats this camera
         would draw wider than that fraction of its shorter side
         (:func:`prosplat.enhance.oversized_splats`; None draws all; a raw view on black always
-        draws all).
+        draws all). ``other_views_opacity``: where the input views' Gaussians overlap, the
+        colour favours the input MORI picks for ``camera``, the others drawn at this fraction
+        of their opacity (needs ``cameras`` and Gaussians that know their view, as
+        :meth:`reconstruct` makes them; :data:`prosplat.enhance.OTHER_VIEWS_OPACITY`; 1: off).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with
@@ -723,6 +733,7 @@ class ProSplat:
             fill_enhanced=fill_enhanced,
             splat_scale=splat_scale,
             max_splat_radius=max_splat_radius,
+            other_views_opacity=other_views_opacity,
         )
 
     def distill(

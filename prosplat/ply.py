@@ -63,6 +63,10 @@ _F_DC = ("f_dc_0", "f_dc_1", "f_dc_2")
 _SCALES = ("scale_0", "scale_1", "scale_2")
 _QUATS = ("rot_0", "rot_1", "rot_2", "rot_3")
 _REQUIRED = (*_MEANS, *_F_DC, "opacity", *_SCALES, *_QUATS)
+#: The optional last property: the input view that predicted each Gaussian
+#: (:attr:`Gaussians.views`), written when known so a scene read back renders as it did
+#: (views favour the input nearest them). Other tools read past it as an extra property.
+VIEW_PROPERTY = "prosplat_view"
 #: Vertex properties read_ply knows but does not keep: INRIA's (always zero) normals.
 _IGNORED = frozenset({"nx", "ny", "nz"})
 
@@ -123,9 +127,11 @@ def _property_names(k: int) -> list[str]:
 
 
 def _vertex_array(g: Gaussians) -> np.ndarray:
-    """[N] structured float32 array in INRIA's layout, filled column block by column block."""
+    """[N] structured float32 array in INRIA's layout, filled column block by column block,
+    then :data:`VIEW_PROPERTY` when the Gaussians know their views (float32 holds every
+    view index exactly)."""
     n, k = len(g), g.sh.shape[1]
-    names = _property_names(k)
+    names = _property_names(k) + ([VIEW_PROPERTY] if g.views is not None else [])
     table = np.zeros((n, len(names)), dtype="<f4")  # [N, P]; nx ny nz stay 0
     table[:, 0:3] = _float_numpy(g.means, np.float32)
     sh = _float_numpy(g.sh, np.float32)  # [N, K, 3]
@@ -142,6 +148,8 @@ def _vertex_array(g: Gaussians) -> np.ndarray:
     log_scales = np.log(np.maximum(scales, SCALE_MIN))
     table[:, col + 1 : col + 4] = log_scales
     table[:, col + 4 : col + 8] = _float_numpy(g.quats, np.float32)
+    if g.views is not None:
+        table[:, col + 8] = g.views.detach().cpu().numpy()
 
     dtype = np.dtype([(name, "<f4") for name in names])
     return table.view(dtype).reshape(n)  # same memory, one record per row
@@ -327,7 +335,7 @@ def read_ply(
             f"{path} holds 0 Gaussians (element vertex 0); nothing to import - re-export it "
             "from the tool that made it"
         )
-    known = {*_REQUIRED, *rest_names, *_IGNORED}
+    known = {*_REQUIRED, *rest_names, *_IGNORED, VIEW_PROPERTY}
     dropped = _dropped_message(
         path,
         [p.name for p in vertex.properties if p.name not in known],
@@ -395,4 +403,27 @@ def read_ply(
     zero = (quats == 0).all(dim=1)  # after the cast: also catches rows that underflowed
     if zero.any():
         quats[zero] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype, device=quats.device)
-    return Gaussians(means, quats, scales, opacities, sh)
+    views = None
+    if VIEW_PROPERTY in scalar:
+        views = view_indices(np.asarray(data[VIEW_PROPERTY]), n)
+        if views is None:
+            message = (
+                f"{path}: property '{VIEW_PROPERTY}' is not a view index per Gaussian "
+                "(integers >= 0); read without it"
+            )
+            if on_warning is not None:
+                on_warning(message)
+            else:
+                warnings.warn(message, PlyWarning, stacklevel=2)
+        else:
+            views = views.to(device)
+    return Gaussians(means, quats, scales, opacities, sh, views)
+
+
+def view_indices(values: np.ndarray, n: int) -> torch.Tensor | None:
+    """``values`` [n] (any numeric type) as int64 view indices, or None unless every one is a
+    finite integer >= 0 (a file's or a point cloud's :data:`VIEW_PROPERTY`)."""
+    a = np.asarray(values, dtype=np.float64).reshape(-1)
+    if a.shape[0] != n or not np.isfinite(a).all() or (a < 0).any() or (a != np.round(a)).any():
+        return None
+    return torch.from_numpy(a.astype(np.int64))

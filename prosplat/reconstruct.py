@@ -35,6 +35,7 @@ from pathlib import Path
 import torch
 
 from prosplat.distill import DEFAULT_DISTILL_STEPS
+from prosplat.enhance import OTHER_VIEWS_OPACITY
 
 __all__ = [
     "DEFAULT_INPUTS",
@@ -118,6 +119,14 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         help="Gaussians to keep: a count or a fraction (default: automatic)",
+    )
+    p.add_argument(
+        "--other-views-opacity",
+        type=float,
+        default=OTHER_VIEWS_OPACITY,
+        help="rendered views take their colour mostly from the input nearest them (MORI's pick), "
+        "the other inputs' Gaussians at this fraction of their opacity where they overlap; the "
+        f"coverage is all of them (default {OTHER_VIEWS_OPACITY:g}; 1: every input alike)",
     )
     p.add_argument("--refine-steps", type=int, default=None, help="refinement steps (optional)")
     p.add_argument(
@@ -302,6 +311,10 @@ def prepare(args: argparse.Namespace, keep_targets: int = 0):
     has fewer frames (leaving ``keep_targets`` frames as targets, but at least 2 inputs)."""
     from prosplat.posed_views import load_posed_set, model_size, pick_views, resolve_background
 
+    if not 0 <= args.other_views_opacity <= 1:
+        raise ValueError(
+            f"--other-views-opacity must lie in [0, 1], got {args.other_views_opacity}"
+        )
     posed = load_posed_set(args.input, args.images, skip_missing=args.skip_missing)
     if posed.missing:
         print(missing_note(posed))
@@ -413,6 +426,7 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
         r = model.render(  # a black background is the render's own: the fill goes over it
             g, cam, images, cameras, enhance=enhance, fill_holes=fill,
             background=None if fill else background,
+            other_views_opacity=args.other_views_opacity,
         )  # fmt: skip
         write_image(out / "renders" / f"{name}_raw.png", r.raw, overwrite=args.overwrite)
         if fill:

@@ -286,6 +286,7 @@ class GaussianParams(torch.nn.Module):
         self.quats = torch.nn.Parameter(F.normalize(g.quats.detach(), dim=1).clone())
         self.sh_dc = torch.nn.Parameter(g.sh.detach()[:, :1].clone())
         self.sh_rest = torch.nn.Parameter(g.sh.detach()[:, 1:].clone())
+        self.views = g.views  # [N] or None: fitting never changes which view made a Gaussian
 
     def gaussians(self) -> Gaussians:
         """The activated Gaussians (valid by construction; :meth:`Gaussians.trusted`)."""
@@ -295,6 +296,7 @@ class GaussianParams(torch.nn.Module):
             torch.exp(self.log_scales),
             torch.sigmoid(self.logit_opacities),
             torch.cat([self.sh_dc, self.sh_rest], dim=1),
+            self.views,
         )
 
     def optimizer(self, lr: LearningRates, lr_means: float) -> torch.optim.Adam:
@@ -367,7 +369,7 @@ def drop_gaussians(g: Gaussians, rate: float, generator: torch.Generator) -> Gau
     scaled = sub.opacities / (1.0 - rate)  # [K]
     capped = scaled.clamp(max=1.0 - 1e-6)
     opacities = scaled + (capped - scaled).detach()  # the value capped, the gradient scaled's
-    return Gaussians.trusted(sub.means, sub.quats, sub.scales, opacities, sub.sh)
+    return Gaussians.trusted(sub.means, sub.quats, sub.scales, opacities, sub.sh, sub.views)
 
 
 def check_images(images: Tensor, cameras: Sequence[Camera], what: str = "refine") -> None:

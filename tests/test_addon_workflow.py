@@ -185,6 +185,33 @@ def test_render_view_distills_when_asked(tabletop, tmp_path: Path) -> None:
     assert "distilled from every enhanced view" in steps.describe_render(res)
 
 
+def test_render_jobs_carry_each_gaussians_view_while_the_inputs_are_those_used(
+    tabletop, tmp_path: Path
+) -> None:
+    """A reconstruction's point cloud keeps each Gaussian's input view (the ``prosplat_view``
+    attribute), and Render View sends it with the inputs in the order the reconstruction
+    numbered them, so views favour the input nearest them; with one of those cameras renamed
+    the numbers would point at the wrong input, so the attribute stays behind."""
+    import numpy as np
+
+    from addon import steps
+
+    scene, inputs, target, folder = tabletop
+    coll = scene.prosplat.inputs
+    g = api.reconstruct(coll, name="views", refine_seconds=0.0)
+    used = [str(n) for n in g[steps.VIEWS_PROP]]
+    params = steps.render_job(g, [], scene, str(tmp_path), None, coll)[1]
+    assert [f["name"] for f in params["inputs"]] == used
+    assert set(np.unique(params["arrays"][steps.VIEW_ATTR]).tolist()) == set(range(len(used)))
+    cam = bpy.data.objects[used[0]]
+    cam.name = used[0] + " (renamed)"
+    try:
+        params = steps.render_job(g, [], scene, str(tmp_path), None, coll)[1]
+        assert steps.VIEW_ATTR not in params["arrays"]
+    finally:
+        cam.name = used[0]
+
+
 def test_raw_render_views_fill_the_holes_by_default(tabletop, tmp_path: Path) -> None:
     """Fill Holes defaults to Raw Renders: a raw Render View shows the fill where no input
     saw the scene instead of black (which costs the shipped generator about 9 dB); "off" leaves

@@ -19,7 +19,6 @@ from prosplat.data import load_scene
 from prosplat.data.scene import resize_views
 from prosplat.evaluate import pick_inputs
 from prosplat.metrics import psnr
-from prosplat.render import render
 
 
 @pytest.fixture(scope="module")
@@ -146,7 +145,11 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
         assert r["n_targets"] == 4
         once = r["method"].startswith(("opt-", "refine-"))
         assert r["recon_repeats"] == (1 if once else 2) and r["recon_timed_once"] == once
-    # enhancement off: the score is the plain rasterizer's, reproduced here independently
+    # enhancement off: the score is the raw render's, reproduced here independently (its
+    # colour favouring the input MORI picks, prosplat.enhance.render_favouring)
+    from prosplat.enhance import OTHER_VIEWS_OPACITY, render_favouring
+    from prosplat.improve.mori import select_reference
+
     for label, views, budget in (("enh off", 4, None), ("2 views, enh off", 2, None)):
         idx = pick_inputs(scene, views)
         cams = [scene.cameras[i] for i in idx]
@@ -156,7 +159,9 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
         view_index = torch.arange(views).repeat_interleave(depths[0].numel())
         g = prune_gaussians(out.gaussians(0), view_index, depths, cams, budget=budget)[0]
         for r in (r for r in rows if r["point"] == label):
-            rgb = render(g, scene.cameras[r["target"]]).rgb.clamp(0, 1)  # [3,H,W]
+            cam = scene.cameras[r["target"]]
+            j = select_reference(cam, cams)
+            rgb = render_favouring(g, cam, j, OTHER_VIEWS_OPACITY).rgb.clamp(0, 1)  # [3,H,W]
             expected = float(psnr(rgb, scene.images[r["target"]]))
             assert r["psnr"] == pytest.approx(expected, abs=1e-4) and r["gaussians"] == len(g)
             assert r["psnr_raw"] == r["psnr"] and r["dtype"] == "-"

@@ -65,10 +65,15 @@ def test_demo_generator_panel_is_the_raw_view_with_its_holes_filled(first_run):
     from prosplat.enhance import render_view
 
     scene = load_scene(first_run.scene_folder)
-    _, cameras = downsample(scene, TINY["size"])
+    images, cameras = downsample(scene, TINY["size"])
+    ins = scene.input_indices
     gaussians = read_ply(first_run.out / "gaussians.ply")
+    assert gaussians.views is not None  # the PLY keeps each Gaussian's input view
     for v in first_run.views:
-        view = render_view(gaussians, cameras[v.index], fill_holes=True)
+        # with the inputs: the colour favours the input MORI picks, as every view does
+        view = render_view(
+            gaussians, cameras[v.index], images[ins], [cameras[i] for i in ins], fill_holes=True
+        )
         assert torch.allclose(v.images["generator"], view.image.clamp(0, 1), atol=2e-3)
         if (view.alpha < 0.5).any():  # where the render on black has holes, the panel differs
             assert not torch.allclose(v.images["generator"], view.raw.clamp(0, 1), atol=2e-3)

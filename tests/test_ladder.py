@@ -544,7 +544,13 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
     the target than black holes where the render leaves any."""
     from types import SimpleNamespace
 
-    from prosplat.enhance import MAX_SPLAT_RADIUS, oversized_splats
+    from prosplat.enhance import (
+        MAX_SPLAT_RADIUS,
+        OTHER_VIEWS_OPACITY,
+        oversized_splats,
+        render_favouring,
+    )
+    from prosplat.improve.mori import select_reference
     from prosplat.render.hole_fill import fill_colour, fill_holes
 
     rungs = {r.name: r for r in build_rungs(["generator", "enhanced", "fill"], LadderContext({}))}
@@ -563,8 +569,11 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
                   target.width, target.height)  # sees past what the inputs saw: holes  # fmt: skip
     for cam in (target, wide):
         # filled and enhanced views leave out the oversized splats (prosplat.enhance)
+        # and their colour favours the input MORI picks (prosplat.enhance.render_favouring)
         kept = g[~oversized_splats(g, cam, MAX_SPLAT_RADIUS)]
-        raw = render(kept, cam)
+        assert kept.views is not None
+        j = select_reference(cam, inp.cameras)
+        raw = render_favouring(kept, cam, j, OTHER_VIEWS_OPACITY)
         raw = SimpleNamespace(image=raw.rgb, alpha=raw.alpha)
         enh = rungs["enhanced"].view(g, cam, inp).image
         filled = rungs["generator filled"].view(g, cam, inp).image

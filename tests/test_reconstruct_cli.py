@@ -114,6 +114,7 @@ def _break(path: Path, how: str) -> None:
         ("no such input", "does not exist"),
         ("bad background", "white, black or R,G,B"),
         ("bad size", "multiple of 32"),
+        ("bad other-views opacity", "--other-views-opacity"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(tmp_path, capsys, how, match):
@@ -129,6 +130,8 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys, how, match):
         extra = ["--background", "pink"]
     elif how == "bad size":
         extra = ["--size", "40"]
+    elif how == "bad other-views opacity":
+        extra = ["--other-views-opacity", "1.5"]
     capsys.readouterr()
     assert cli("reconstruct", path, "--out", tmp_path / "out", "--size", "32", *extra) == 2
     assert match in _one_line_error(capsys, "reconstruct")

@@ -14,6 +14,10 @@ splat tools' node setups find the names they expect, and a PLY -> mesh -> PLY tr
 * ``color`` is extra: the view-independent colour ``SH0·C0 + 0.5`` (clamped to [0, 1],
   converted from display sRGB to the linear values Blender's colour attributes hold) with the
   opacity as alpha, for the viewport. It is derived, so it is ignored on the way back.
+* ``prosplat_view`` (:data:`prosplat.ply.VIEW_PROPERTY`), when the Gaussians know it: the
+  input view that predicted each one (:attr:`Gaussians.views`), so a view rendered from the
+  object favours the input nearest it as the library's views do. Absent or edited into
+  something that is not one index >= 0 per point, the views are unknown (None).
 
 Everything is whole-array numpy; no per-Gaussian Python.
 """
@@ -26,7 +30,7 @@ import numpy as np
 import torch
 
 from prosplat.gaussians import SH_C0, Gaussians
-from prosplat.ply import OPACITY_MAX, OPACITY_MIN, SCALE_MIN
+from prosplat.ply import OPACITY_MAX, OPACITY_MIN, SCALE_MIN, VIEW_PROPERTY, view_indices
 from prosplat.rotations import quat_multiply
 
 __all__ = [
@@ -99,6 +103,8 @@ def to_attributes(gaussians: Gaussians) -> dict[str, np.ndarray]:
     color[:, :3] = _srgb_to_linear(rgb)
     color[:, 3] = g.opacities.numpy()
     out[COLOR] = color
+    if g.views is not None:  # the input view of each, so views of a target favour the nearest
+        out[VIEW_PROPERTY] = g.views.numpy().astype(np.float32)
     return out
 
 
@@ -141,7 +147,10 @@ def from_attributes(
     zero = ~quats.any(axis=1)
     quats[zero] = (1.0, 0.0, 0.0, 0.0)  # as read_ply: zeros are "no rotation" in some tools
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(dtype)  # noqa: E731
-    return Gaussians(t(pos), t(quats), t(scales), t(opacity), t(sh))
+    views = None  # absent, or not one index >= 0 per point (edited): the views are unknown
+    if VIEW_PROPERTY in attributes:
+        views = view_indices(attributes[VIEW_PROPERTY], n)
+    return Gaussians(t(pos), t(quats), t(scales), t(opacity), t(sh), views)
 
 
 # ---- rigid / similarity transforms ----------------------------------------------------------
@@ -207,4 +216,4 @@ def transform_gaussians(gaussians: Gaussians, matrix) -> Gaussians:
     for band, D in enumerate(_sh_rotation(g.sh_degree, R), start=1):
         s_ = slice(band * band, (band + 1) ** 2)
         sh[:, s_] = torch.einsum("ij,njc->nic", D, sh[:, s_])
-    return Gaussians(means, quats, scales, g.opacities, sh.to(dt))
+    return Gaussians(means, quats, scales, g.opacities, sh.to(dt), g.views)

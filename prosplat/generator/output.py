@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+import torch
 from torch import Tensor
 
 from prosplat.gaussians import Gaussians
@@ -42,11 +43,14 @@ class GeneratorOutput:
         return self.means.shape[0]
 
     def gaussians(self, b: int = 0) -> Gaussians:
-        """Scene ``b`` as :class:`prosplat.Gaussians` (keeps the autograd graph)."""
+        """Scene ``b`` as :class:`prosplat.Gaussians` (keeps the autograd graph), each tagged
+        with the input view it came from (``views``, view-major as the Gaussians are)."""
         if not -self.batch_size <= b < self.batch_size:
             raise IndexError(f"scene index {b} out of range for a batch of {self.batch_size}")
+        _, v, h, w = self.depths.shape
+        views = torch.arange(v, device=self.means.device).repeat_interleave(h * w)  # [N]
         return Gaussians(
-            self.means[b], self.quats[b], self.scales[b], self.opacities[b], self.sh[b]
+            self.means[b], self.quats[b], self.scales[b], self.opacities[b], self.sh[b], views
         )
 
     def detach(self) -> GeneratorOutput:

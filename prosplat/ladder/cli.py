@@ -17,8 +17,8 @@ from pathlib import Path
 
 #: the rows run by default (per-scene optimisation joins when --opt-steps is given)
 DEFAULT_ROWS = (
-    "flat", "paste", "optimize", "generator", "enhanced", "fill", "splat", "cull", "warp", "refine",
-    "distill", "true-depth", "depthsplat",
+    "flat", "paste", "optimize", "generator", "enhanced", "fill", "splat", "cull", "favour", "warp",
+    "refine", "distill", "true-depth", "depthsplat",
 )  # fmt: skip
 
 
@@ -49,6 +49,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with the 'cull' rows: leave out the splats a target would see "
                         "wider than these fractions of its shorter side, e.g. 0.1: rows "
                         "'generator filled ≤R', 'enhanced ≤R'")  # fmt: skip
+    parser.add_argument("--other-views-opacity", type=float, nargs="*", default=[],
+                        help="with the 'favour' rows: the views drawn with the other input "
+                        "views' Gaussians at these fractions of their opacity in the colour "
+                        "(the input MORI picks at full), e.g. 1 for all alike: rows 'generator "
+                        "filled ◇W', 'enhanced ◇W', 'enhanced filled ◇W'")  # fmt: skip
     parser.add_argument("--generator", default=None, help="generator checkpoint (default shipped)")
     parser.add_argument("--generator-size", type=int, default=None,
                         help="run the generator at most this high (px, a multiple of 32; default: "
@@ -91,6 +96,8 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--distill-steps: {bad} must be >= 1")
     if bad := [r for r in args.max_splat_radius if not 0 < r < float("inf")]:
         raise ValueError(f"--max-splat-radius: {bad} must be finite and > 0")
+    if bad := [w for w in args.other_views_opacity if not 0 <= w <= 1]:
+        raise ValueError(f"--other-views-opacity: {bad} must lie in [0, 1]")
     if bad := [s for s in args.splat_scales if not 0 < s < float("inf")]:
         raise ValueError(f"--splat-scales: {bad} must be finite and > 0")
     if bad := [s for s in args.refine_seconds if not s > 0]:
@@ -135,7 +142,7 @@ def command(args: argparse.Namespace) -> str:
         parts += ["--rows", *args.rows]
     for flag in (
         "opt_steps", "refine_steps", "refine_seconds", "distill_steps", "splat_scales",
-        "max_splat_radius",
+        "max_splat_radius", "other_views_opacity",
     ):  # fmt: skip
         if getattr(args, flag):
             parts += [f"--{flag.replace('_', '-')}", *(f"{v:g}" for v in getattr(args, flag))]

@@ -35,7 +35,7 @@ import torch
 from torch import Tensor
 
 from prosplat.camera import Camera
-from prosplat.enhance import MAX_SPLAT_RADIUS
+from prosplat.enhance import MAX_SPLAT_RADIUS, OTHER_VIEWS_OPACITY
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import reference_warp, warp_for
 from prosplat.ladder.geometry import true_depth_gaussians
@@ -219,16 +219,19 @@ def paste_rungs(ctx: LadderContext) -> list[Rung]:
 def splat_view(
     gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False,
     splat_scale: float = 1.0, max_splat_radius: float | None = MAX_SPLAT_RADIUS,
+    other_views_opacity: float = OTHER_VIEWS_OPACITY,
 ) -> View:  # fmt: skip
     """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference);
     ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`);
     ``splat_scale``: the Gaussians' scales multiplied by it; ``max_splat_radius``: splats
-    wider than that fraction of the view left out (:func:`prosplat.enhance.render_view`)."""
+    wider than that fraction of the view left out; ``other_views_opacity``: the colour
+    favours the input MORI picks (:func:`prosplat.enhance.render_view`)."""
     from prosplat.enhance import render_view
 
     out = render_view(
         gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32,
         fill_holes=fill_holes, splat_scale=splat_scale, max_splat_radius=max_splat_radius,
+        other_views_opacity=other_views_opacity,
     )  # fmt: skip
     return View(
         out.image,
@@ -381,6 +384,20 @@ def cull_rungs(ctx: LadderContext) -> list[Rung]:
     if not radii:
         raise SkipRung("no splat radius asked for; pass --max-splat-radius 0.1")
     return _variant_rungs(ctx, "cull", radii, "≤", "max_splat_radius", enhanced_filled=False)
+
+
+@register("favour")
+def favour_rungs(ctx: LadderContext) -> list[Rung]:
+    """The generator's views with the other input views' Gaussians at a fraction of their
+    opacity in the colour (``--other-views-opacity``, :func:`prosplat.enhance.render_favouring`;
+    1 draws every view alike, as before the default favoured the nearest): rows ``generator
+    filled ◇W`` and, per improvement model, ``enhanced ◇W`` and ``enhanced filled ◇W``, on the
+    same reconstruction as the ``generator`` row, so they pair with the default rows target
+    by target."""
+    weights = [float(w) for w in ctx.options.get("other_views_opacity") or []]
+    if not weights:
+        raise SkipRung("no other-views opacity asked for; pass --other-views-opacity 1")
+    return _variant_rungs(ctx, "favour", weights, "◇", "other_views_opacity", enhanced_filled=True)
 
 
 def warp_paste_view(g, cam: Camera, inp: SceneInputs) -> View:

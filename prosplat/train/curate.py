@@ -20,7 +20,12 @@ from torch import Tensor
 from prosplat.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import load_source, scene_sources, source_name
 from prosplat.data.scene import resize_views
-from prosplat.enhance import MAX_SPLAT_RADIUS, painted_view_gaussians
+from prosplat.enhance import (
+    MAX_SPLAT_RADIUS,
+    OTHER_VIEWS_OPACITY,
+    painted_view_gaussians,
+    render_favouring,
+)
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
@@ -47,6 +52,7 @@ def curate_scene(
     generator_height: int | None = None,
     splat_scale: float = 1.0,
     max_splat_radius: float | None = MAX_SPLAT_RADIUS,
+    other_views_opacity: float = OTHER_VIEWS_OPACITY,
 ) -> dict[str, list[Tensor]]:
     """Samples of one scene for each input-view count in ``views`` (counts above the scene's
     input views are skipped). ``refine_steps > 0`` renders the refined scene instead (the
@@ -59,7 +65,9 @@ def curate_scene(
     ``max_splat_radius``: each target view leaves out the Gaussians it would draw wider than
     this fraction of its shorter side, as an enhanced view does at inference
     (:func:`prosplat.enhance.oversized_splats`, judged before ``splat_scale``; the warp's
-    reference depth comes from the same Gaussians); None draws every splat."""
+    reference depth comes from the same Gaussians); None draws every splat.
+    ``other_views_opacity``: the render's colour favours the input MORI picks for the target,
+    as every view at inference does (:func:`prosplat.enhance.render_favouring`; 1: off)."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -94,7 +102,11 @@ def curate_scene(
             capped = len(drawn) < len(gaussians)  # this view leaves some splats out
             drawn = drawn if capped else drawn_all
             with torch.no_grad():
-                out = render(drawn, cam, background=torch.zeros(3))
+                if other_views_opacity == 1 or drawn.views is None:
+                    out = render(drawn, cam, background=torch.zeros(3))
+                else:
+                    favoured = select_reference(cam, cams, method="paper")
+                    out = render_favouring(drawn, cam, favoured, other_views_opacity)
             put("render", out.rgb.half())
             put("alpha", out.alpha.half())
             put("target", scene.images[t].half())
@@ -132,14 +144,15 @@ def curate(
     generator_height: int | None = None,
     splat_scale: float = 1.0,
     max_splat_radius: float | None = MAX_SPLAT_RADIUS,
+    other_views_opacity: float = OTHER_VIEWS_OPACITY,
     first: int = 0,
     count: int | None = None,
 ) -> Path:
     """Curate every scene under ``root`` with the generator ``model`` (a ProSplat) into ``out``;
     ``refine_steps > 0``: renders of the refined scenes (see :func:`curate_scene`); ``height``:
     views resized to this height first (antialiased, as the ladder evaluates), so one set of
-    128-px scenes serves a 64-px model; ``generator_height``, ``splat_scale`` and
-    ``max_splat_radius``: see :func:`curate_scene`.
+    128-px scenes serves a 64-px model; ``generator_height``, ``splat_scale``,
+    ``max_splat_radius`` and ``other_views_opacity``: see :func:`curate_scene`.
 
     ``root``: a dataset folder, a scene pack (``.npz``, ``prosplat scenes pack``; depth is not
     needed) or several of them, comma-separated. ``first`` / ``count`` curate a slice of the
@@ -178,7 +191,7 @@ def curate(
         part = curate_scene(
             model, scene, views, refine_steps=refine_steps, seed=s,
             generator_height=generator_height, splat_scale=splat_scale,
-            max_splat_radius=max_splat_radius,
+            max_splat_radius=max_splat_radius, other_views_opacity=other_views_opacity,
         )  # fmt: skip
         for k, v in part.items():
             cols.setdefault(k, []).extend(v)
@@ -197,6 +210,7 @@ def curate(
         "generator_height": str(generator_height or ""),
         "splat_scale": f"{splat_scale:g}",
         "max_splat_radius": "" if max_splat_radius is None else f"{max_splat_radius:g}",
+        "other_views_opacity": f"{other_views_opacity:g}",
         # the generator's depth after the local sweep (prosplat.depth_sweep) or as predicted
         "depth_sweep": "on" if getattr(model, "depth_sweep", None) is not None else "off",
         "command": command,
