@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Stage 2 v25 candidate (level on the test scenes, -0.2 dB on the fox photos: not shipped;
 # BENCHMARKS "Views favour the nearest input"): the shipped v22 fine-tuned with v22's recipe
-# on the shipped generator v16's renders whose colour favours the input MORI picks for each target (`train curate
-# --other-views-opacity`, default prosplat.enhance.OTHER_VIEWS_OPACITY), as every view now
-# renders. Why: favouring the nearest input lifts the filled raw view by +0.31 dB at 128 px but
+# on the shipped generator v16's renders whose colour favours the input MORI picks for each
+# target (`train curate --other-views-opacity`, default prosplat.enhance.OTHER_VIEWS_OPACITY),
+# as every view now renders. Why: favouring the nearest input lifts the filled raw view by +0.31 dB at 128 px but
 # v22's enhanced view by only +0.09 (BENCHMARKS "Views favour the nearest input"), and each
 # stage 2 so far gained most from matching the renders it enhances.
 #   scenes: family seeds 10540-10636 and the hard scenes of render rounds 9-10 (121 scenes
