@@ -286,12 +286,20 @@ def render_job(gaussians, targets, scene, output_dir: str, context=None, inputs=
     used = gaussians.get(VIEWS_PROP)
     frames = cameras.input_frames(inputs, scene, names=used) if inputs is not None else []
     arrays = pointcloud.read_arrays(gaussians)
+    notes = []
     if used is None or [f["name"] for f in frames] != [str(n) for n in used]:
         # the Gaussians' view numbers index the cameras the reconstruction used, in its order:
         # with one of them gone or renamed they would favour the wrong input, so none is
-        arrays.pop(VIEW_ATTR, None)
+        if arrays.pop(VIEW_ATTR, None) is not None and used is not None:
+            gone = [str(n) for n in used if str(n) not in {f["name"] for f in frames}]
+            notes.append(
+                f"input camera(s) {', '.join(gone[:3]) or 'of the reconstruction'} renamed or "
+                "deleted since reconstructing: views blend every input alike instead of "
+                "favouring the nearest (reconstruct again to restore it)"
+            )
     out = resolve_dir(output_dir, "renders")
     params = {
+        "notes": notes,
         "arrays": arrays,
         "matrix_world": pointcloud.world_matrix(gaussians),
         "targets": targets,

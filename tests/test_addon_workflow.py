@@ -203,11 +203,15 @@ def test_render_jobs_carry_each_gaussians_view_while_the_inputs_are_those_used(
     params = steps.render_job(g, [], scene, str(tmp_path), None, coll)[1]
     assert [f["name"] for f in params["inputs"]] == used
     assert set(np.unique(params["arrays"][steps.VIEW_ATTR]).tolist()) == set(range(len(used)))
+    assert params["notes"] == []
     cam = bpy.data.objects[used[0]]
     cam.name = used[0] + " (renamed)"
     try:
         params = steps.render_job(g, [], scene, str(tmp_path), None, coll)[1]
         assert steps.VIEW_ATTR not in params["arrays"]
+        assert len(params["notes"]) == 1 and used[0] in params["notes"][0]
+        res = api.render_views(g, [target], tmp_path / "renamed", inputs=coll, enhance=False)
+        assert any("favouring the nearest" in w for w in res["warnings"])
     finally:
         cam.name = used[0]
 

@@ -378,6 +378,8 @@ def task_render(params: dict, progress: Progress) -> dict:
     if not targets:
         raise ValueError("no cameras to render; select a camera or set an active one")
     params = {**params, "fill_holes": fill_mode(params.get("fill_holes"))}  # fails before work
+    for note in params.get("notes") or []:  # what the caller found (e.g. the add-on's inputs)
+        progress.warn(str(note))
     frames = params.get("inputs") or []
     for fr in frames:
         if fr.get("image") and Path(fr["image"]).resolve().parent == out_dir.resolve():
