@@ -5,6 +5,10 @@ On disk a Gaussian is one ``vertex`` with float32 properties, in INRIA's order::
 
     x y z  nx ny nz  f_dc_0..2  f_rest_0..(3(K-1)-1)  opacity  scale_0..2  rot_0..3
 
+then, for Gaussians that know their input views (:attr:`Gaussians.views`), one more float32
+property ``prosplat_view`` (:data:`VIEW_PROPERTY`); tools that read properties by name (INRIA's
+Python code, SuperSplat, gsplat, nerfstudio) read past it, while a reader that assumes the
+fixed INRIA record size does not: pass ``Gaussians.with_views(None)`` to write without it.
 ``nx ny nz`` are zeros (INRIA writes them and some viewers expect them), ``opacity`` is a
 logit, ``scale_*`` are natural logs, ``rot_*`` is the quaternion (w, x, y, z) as stored.
 ``f_rest`` is channel-major, as INRIA flattens ``features_rest.transpose(1, 2)``: all
