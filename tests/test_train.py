@@ -810,7 +810,7 @@ def test_render_loss_can_score_targets_through_the_favoured_render(dataset):
         float(((render_favouring(g, c, select_reference(c, inputs), 0.25).rgb - im) ** 2).mean())
         for c, im in zip(cams, images)
     ) / len(cams)
-    assert float(parts["mse"].detach()) == pytest.approx(want, rel=1e-4)
+    assert parts["mse"] == pytest.approx(want, rel=1e-4)
     assert float(fav.detach()) != pytest.approx(float(plain.detach()), rel=1e-6)
     fav.backward()
     assert sum(float(p.grad.abs().sum()) for p in model.parameters() if p.grad is not None) > 0
