@@ -783,36 +783,3 @@ def test_framed_steps_crop_inputs_and_targets_with_their_cameras(tmp_path):
     train(cfg, progress=False)
     rec = json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[-1])
     assert math.isfinite(rec["loss"]) and rec["step"] == 2
-
-
-def test_render_loss_can_score_targets_through_the_favoured_render(dataset):
-    """``target_other_views_opacity`` < 1: each target is scored on the render that favours
-    the input MORI picks for it (``prosplat.enhance.render_favouring``), as views render at
-    run time; the input cameras keep the plain render; the gradient reaches the network."""
-    from prosplat.enhance import render_favouring
-    from prosplat.improve.mori import select_reference
-    from prosplat.train.generator import _model_inputs, batch_cameras, render_loss
-
-    torch.manual_seed(0)
-    model = ProSplat().generator.train()
-    item = SceneDataset(str(dataset), n_inputs=3, n_targets=2)[0]
-    batch = {k: v[None] for k, v in item.items()}
-    kw = dict(data="x", out="x", lpips_weight=0.0, ssim_weight=0.0, input_render_weight=0.0)
-    output = model(*_model_inputs(batch))
-    plain, _ = render_loss(output, batch, TrainConfig(**kw))
-    fav, parts = render_loss(output, batch, TrainConfig(**kw, target_other_views_opacity=0.25))
-    g = output.gaussians(0)
-    images = batch["target_images"][0]
-    h, w = images.shape[-2:]
-    cams = batch_cameras(batch["target_K"][0], batch["target_w2c"][0], w, h)
-    inputs = batch_cameras(batch["input_K"][0], batch["input_w2c"][0], w, h)
-    want = sum(
-        float(((render_favouring(g, c, select_reference(c, inputs), 0.25).rgb - im) ** 2).mean())
-        for c, im in zip(cams, images)
-    ) / len(cams)
-    assert parts["mse"] == pytest.approx(want, rel=1e-4)
-    assert float(fav.detach()) != pytest.approx(float(plain.detach()), rel=1e-6)
-    fav.backward()
-    assert sum(float(p.grad.abs().sum()) for p in model.parameters() if p.grad is not None) > 0
-    with pytest.raises(ValueError, match="target_other_views_opacity"):
-        TrainConfig(**kw, target_other_views_opacity=1.5)

@@ -247,10 +247,6 @@ class TrainConfig:
     # (an object flattened into the floor behind it) gets almost none; this term pushes the
     # true candidate up whatever mass it has. 0: off
     input_depth_ce_weight: float = 0.0
-    # target renders in the loss favour the input MORI picks for each target, the other views'
-    # Gaussians entering the colour at this fraction of their opacity, as every view renders
-    # at run time (prosplat.enhance.render_favouring); 1: every input alike (before 2026-11-28)
-    target_other_views_opacity: float = 1.0
     # how both depth terms compare depths: "inverse" (L1 of 1/z, in scene units, so scenes of
     # small depth weigh most) or "log" (L1 of log z: the relative error AbsRel scores, the same
     # for a scene at any scale)
@@ -322,11 +318,6 @@ class TrainConfig:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
         if self.grow_fine_matching < 0:
             raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
-        if not 0 <= self.target_other_views_opacity <= 1:
-            raise ValueError(
-                "target_other_views_opacity must be in [0, 1], got "
-                f"{self.target_other_views_opacity}"
-            )
         if self.input_depth_ce_weight < 0:
             raise ValueError(
                 f"input_depth_ce_weight must be >= 0, got {self.input_depth_ce_weight}"
@@ -402,24 +393,6 @@ def _render_views(
     return rgb, alpha, depth
 
 
-def _render_favoured_views(
-    gaussians, cams: list[Camera], inputs: list[Camera], weight: float, bg: Tensor
-) -> tuple[Tensor, Tensor, Tensor]:
-    """:func:`_render_views` with each camera's colour favouring the input MORI picks for it
-    (:func:`prosplat.enhance.render_favouring`; only the cameras' poses matter for the pick,
-    so ``inputs`` may be at any size). Two CPU renders a camera."""
-    from prosplat.enhance import render_favouring
-    from prosplat.improve.mori import select_reference
-
-    outs = [
-        render_favouring(gaussians, cam, select_reference(cam, inputs), weight, bg) for cam in cams
-    ]
-    rgb, alpha, depth = (
-        torch.stack([getattr(o, k) for o in outs]) for k in ("rgb", "alpha", "depth")
-    )
-    return rgb, alpha, depth
-
-
 def render_loss(
     output,
     batch: dict[str, Tensor],
@@ -451,13 +424,7 @@ def render_loss(
             images, depths = batch[f"{group}_images"][b], batch.get(f"{group}_depths")
             h, w = images.shape[-2:]
             cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
-            if group == "target" and cfg.target_other_views_opacity < 1:
-                inputs = batch_cameras(batch["input_K"][b], batch["input_w2c"][b], w, h)
-                rgb, alpha, depth = _render_favoured_views(
-                    gaussians, cams, inputs, cfg.target_other_views_opacity, bg
-                )  # [C,3,H,W]
-            else:
-                rgb, alpha, depth = _render_views(gaussians, cams, bg, cpu_backend)
+            rgb, alpha, depth = _render_views(gaussians, cams, bg, cpu_backend)  # [C,3,H,W]
             if cfg.fill_holes:
                 rgb = fill_holes(rgb, alpha)  # [C,3,H,W], covered pixels unchanged
             mse = ((rgb - images) ** 2).mean(dim=(1, 2, 3))  # [C]
