@@ -121,7 +121,8 @@ def render_favouring(
     (``gaussians.views == view``): the others enter the colour at ``other_views_opacity``
     times their opacity; alpha, depth and visibility are the plain render's, so the
     coverage (and what a fill or stage 2 treats as a hole) does not change. Where the
-    favoured view draws nothing the colour is the plain render's. Two renders."""
+    favoured view draws nothing, the colour is the others' own blend; where the weighted
+    render draws almost nothing (alpha <= 1e-4), the plain render's. Two renders."""
     if gaussians.views is None:
         raise ValueError("render_favouring needs Gaussians with views (the input view of each)")
     out = render(gaussians, camera, background=background)
