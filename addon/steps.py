@@ -287,11 +287,13 @@ def render_job(gaussians, targets, scene, output_dir: str, context=None, inputs=
     frames = cameras.input_frames(inputs, scene, names=used) if inputs is not None else []
     arrays = pointcloud.read_arrays(gaussians)
     notes = []
-    if used is None or [f["name"] for f in frames] != [str(n) for n in used]:
+    names = [f["name"] for f in frames]
+    wanted = None if used is None else [str(n) for n in used]
+    if names != wanted:
         # the Gaussians' view numbers index the cameras the reconstruction used, in its order:
         # with one of them gone or renamed they would favour the wrong input, so none is
-        if arrays.pop(VIEW_ATTR, None) is not None and used is not None:
-            gone = [str(n) for n in used if str(n) not in {f["name"] for f in frames}]
+        if arrays.pop(VIEW_ATTR, None) is not None and wanted is not None:
+            gone = [n for n in wanted if n not in names]
             notes.append(
                 f"input camera(s) {', '.join(gone[:3]) or 'of the reconstruction'} renamed or "
                 "deleted since reconstructing: views blend every input alike instead of "

@@ -170,6 +170,23 @@ def _favoured_view(
     return select_reference(camera, list(cameras), method="paper")
 
 
+def render_as_viewed(
+    gaussians: Gaussians,
+    camera: Camera,
+    cameras: Sequence[Camera] | None,
+    other_views_opacity: float = OTHER_VIEWS_OPACITY,
+    background: Tensor | None = None,
+) -> RenderOutput:
+    """The render every view starts from: :func:`render_favouring` of the input MORI picks
+    among ``cameras`` when the Gaussians know their views and ``other_views_opacity`` < 1,
+    else the plain ``render``. :func:`render_view` and stage-2 curation both draw this, so
+    stage 2 learns from the renders it is given."""
+    favoured = _favoured_view(gaussians, camera, cameras, other_views_opacity)
+    if favoured is None:
+        return render(gaussians, camera, background=background)
+    return render_favouring(gaussians, camera, favoured, other_views_opacity, background)
+
+
 @dataclass
 class EnhancedView:
     """One rendered (and possibly enhanced) view.
@@ -408,16 +425,9 @@ def render_view(
             "fill_holes fills the holes of a render on black; pass a background or "
             "fill_holes=True, not both"
         )
-    favoured = _favoured_view(gaussians, camera, cameras, other_views_opacity)
-
-    def draw(g: Gaussians):
-        if favoured is None:
-            return render(g, camera, background=background)
-        return render_favouring(g, camera, favoured, other_views_opacity, background)
-
     t0 = time.perf_counter()
     with torch.no_grad():
-        out = draw(gaussians)
+        out = render_as_viewed(gaussians, camera, cameras, other_views_opacity, background)
     t1 = time.perf_counter()
     timings = {"render_ms": 1e3 * (t1 - t0)}
     fill = fill_colour(out.rgb, out.alpha) if fill_holes else None  # [3,H,W]
@@ -456,7 +466,7 @@ def render_view(
     reason = guard_reason(out.rgb, image, out.alpha, options) if options.guard else None
     if reason is not None and fill is None and gaussians is not as_given:
         with torch.no_grad():  # a guarded view on black: every Gaussian at its own size
-            image = draw(as_given).rgb
+            image = render_as_viewed(as_given, camera, cameras, other_views_opacity, background).rgb
     elif reason is not None:
         image = shown
     elif fill is not None and fill_enhanced:

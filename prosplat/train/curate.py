@@ -24,7 +24,7 @@ from prosplat.enhance import (
     MAX_SPLAT_RADIUS,
     OTHER_VIEWS_OPACITY,
     painted_view_gaussians,
-    render_favouring,
+    render_as_viewed,
 )
 from prosplat.evaluate import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
@@ -67,7 +67,7 @@ def curate_scene(
     (:func:`prosplat.enhance.oversized_splats`, judged before ``splat_scale``; the warp's
     reference depth comes from the same Gaussians); None draws every splat.
     ``other_views_opacity``: the render's colour favours the input MORI picks for the target,
-    as every view at inference does (:func:`prosplat.enhance.render_favouring`; 1: off)."""
+    as every view at inference does (:func:`prosplat.enhance.render_as_viewed`; 1: off)."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -101,12 +101,8 @@ def curate_scene(
             drawn = painted_view_gaussians(gaussians, cam, max_splat_radius, splat_scale)
             capped = len(drawn) < len(gaussians)  # this view leaves some splats out
             drawn = drawn if capped else drawn_all
-            with torch.no_grad():
-                if other_views_opacity == 1 or drawn.views is None:
-                    out = render(drawn, cam, background=torch.zeros(3))
-                else:
-                    favoured = select_reference(cam, cams, method="paper")
-                    out = render_favouring(drawn, cam, favoured, other_views_opacity)
+            with torch.no_grad():  # as render_view draws it: favouring MORI's pick
+                out = render_as_viewed(drawn, cam, cams, other_views_opacity, torch.zeros(3))
             put("render", out.rgb.half())
             put("alpha", out.alpha.half())
             put("target", scene.images[t].half())
