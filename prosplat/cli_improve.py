@@ -199,9 +199,10 @@ def add_train_parsers(train_sub) -> None:
         type=float,
         default=OTHER_VIEWS_OPACITY,
         help="each target's render favours the input MORI picks for it, the other views' "
-        "Gaussians entering the colour at this fraction of their opacity, as every view does "
-        f"at inference (default {OTHER_VIEWS_OPACITY:g}, prosplat.enhance.OTHER_VIEWS_OPACITY; "
-        "1: all alike, as sets curated before 2026-11-28 were)",
+        "Gaussians entering the colour at up to this fraction of their opacity, less the "
+        "farther they are, as every view does at inference (default "
+        f"{OTHER_VIEWS_OPACITY:g}, prosplat.enhance.OTHER_VIEWS_OPACITY; 1: all alike, as "
+        "sets curated before 2026-11-28 were; sets curated on 2026-11-28 used a constant)",
     )
     cu.add_argument(
         "--size",

@@ -704,9 +704,11 @@ class ProSplat:
         would draw wider than that fraction of its shorter side
         (:func:`prosplat.enhance.oversized_splats`; None draws all; a raw view on black always
         draws all). ``other_views_opacity``: where the input views' Gaussians overlap, the
-        colour favours the input MORI picks for ``camera``, the others drawn at this fraction
-        of their opacity (needs ``cameras`` and Gaussians that know their view, as
-        :meth:`reconstruct` makes them; :data:`prosplat.enhance.OTHER_VIEWS_OPACITY`; 1: off).
+        colour favours the input MORI picks for ``camera``, the others drawn at up to this
+        fraction of their opacity, less the farther they are from ``camera``
+        (:func:`prosplat.enhance.view_weights`; needs ``cameras`` and Gaussians that know
+        their view, as :meth:`reconstruct` makes them;
+        :data:`prosplat.enhance.OTHER_VIEWS_OPACITY`; 1: off).
 
         Raises:
             ValueError: ``enhance`` without an improvement model loaded (train one with

@@ -125,8 +125,9 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=OTHER_VIEWS_OPACITY,
         help="rendered views take their colour mostly from the input nearest them (MORI's pick), "
-        "the other inputs' Gaussians at this fraction of their opacity where they overlap; the "
-        f"coverage is all of them (default {OTHER_VIEWS_OPACITY:g}; 1: every input alike)",
+        "the other inputs' Gaussians at up to this fraction of their opacity where they overlap, "
+        "less the farther they are; the coverage is all of them "
+        f"(default {OTHER_VIEWS_OPACITY:g}; 1: every input alike)",
     )
     p.add_argument("--refine-steps", type=int, default=None, help="refinement steps (optional)")
     p.add_argument(

@@ -147,7 +147,7 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
         assert r["recon_repeats"] == (1 if once else 2) and r["recon_timed_once"] == once
     # enhancement off: the score is the raw render's, reproduced here independently (its
     # colour favouring the input MORI picks, prosplat.enhance.render_favouring)
-    from prosplat.enhance import OTHER_VIEWS_OPACITY, render_favouring
+    from prosplat.enhance import OTHER_VIEWS_OPACITY, render_favouring, view_weights
     from prosplat.improve.mori import select_reference
 
     for label, views, budget in (("enh off", 4, None), ("2 views, enh off", 2, None)):
@@ -161,7 +161,8 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
         for r in (r for r in rows if r["point"] == label):
             cam = scene.cameras[r["target"]]
             j = select_reference(cam, cams)
-            rgb = render_favouring(g, cam, j, OTHER_VIEWS_OPACITY).rgb.clamp(0, 1)  # [3,H,W]
+            w = view_weights(cam, cams, j, OTHER_VIEWS_OPACITY)
+            rgb = render_favouring(g, cam, w).rgb.clamp(0, 1)  # [3,H,W]
             expected = float(psnr(rgb, scene.images[r["target"]]))
             assert r["psnr"] == pytest.approx(expected, abs=1e-4) and r["gaussians"] == len(g)
             assert r["psnr_raw"] == r["psnr"] and r["dtype"] == "-"

@@ -1,6 +1,7 @@
 """Views favour the input nearest them: ``Gaussians.views`` (each Gaussian's input view), where
-it comes from and where it survives, and ``prosplat.enhance.render_favouring`` against the
-brute-force renderer (``tests/reference_renderer.py``)."""
+it comes from and where it survives, ``prosplat.enhance.view_weights`` (how much each view
+counts) and ``render_favouring`` against the brute-force renderer
+(``tests/reference_renderer.py``)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import torch
 
 from prosplat import Camera, Gaussians
 from prosplat.convert.pointcloud import from_attributes, to_attributes, transform_gaussians
-from prosplat.enhance import OTHER_VIEWS_OPACITY, render_favouring, render_view
+from prosplat.enhance import OTHER_VIEWS_OPACITY, render_favouring, render_view, view_weights
 from prosplat.improve.mori import select_reference
 from prosplat.ply import VIEW_PROPERTY, PlyWarning, read_ply, write_ply
 from prosplat.render import render
@@ -99,20 +100,46 @@ def test_the_generator_tags_each_gaussian_with_its_view() -> None:
     assert out.gaussians(0).views.tolist() == [k // (h * w) for k in range(n)]
 
 
+def test_view_weights_fall_with_the_distance_from_the_target() -> None:
+    """1 for the favoured input; W · min(1, d_fav / d_j) for the others, d the distance
+    between camera centres: ~0 at the favoured input's own camera, W for one as near (or
+    within rounding of it)."""
+    cams = [_camera((3.0, 0.0, 0.0)), _camera((0.0, 3.0, 0.0)), _camera((-3.0, 0.0, 0.0))]
+    target = _camera((3.0, 1.0, 0.0))  # 1 from input 0, sqrt(13) from 1, sqrt(37) from 2
+    w = view_weights(target, cams, 0, 0.5)
+    assert w.dtype == torch.float64
+    assert torch.allclose(w, torch.tensor([1.0, 0.5 / 13**0.5, 0.5 / 37**0.5], dtype=w.dtype))
+    # favouring a view farther than another: the nearer one counts W, not more
+    assert torch.allclose(view_weights(target, cams, 1, 0.5)[[0, 2]],
+                          torch.tensor([0.5, 0.5 * 13**0.5 / 37**0.5], dtype=w.dtype))  # fmt: skip
+    # at an input camera the others count nothing; every centre the same: all count W
+    at_input = view_weights(cams[2], cams, 2, 0.5)
+    assert torch.allclose(at_input, torch.tensor([0.0, 0.0, 1.0], dtype=w.dtype), atol=1e-6)
+    same = [_camera((3.0, 0.0, 0.0)), Camera.look_at((3.0, 0.0, 0.0), (0.0, 1.0, 0.0),
+                                                     (0.0, 0.0, 1.0), 30.0, SIZE, SIZE)]  # fmt: skip
+    assert view_weights(same[0], same, 0, 0.25).tolist() == pytest.approx([1.0, 0.25])
+    assert view_weights(target, cams, 0, 0.0).tolist() == [1.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match="favoured view 3"):
+        view_weights(target, cams, 3, 0.5)
+    with pytest.raises(ValueError, match="other_views_opacity"):
+        view_weights(target, cams, 0, 1.5)
+
+
 def test_favouring_keeps_the_coverage_and_moves_the_colour_towards_the_favoured_view() -> None:
-    """Alpha and depth are the plain render's; the colour is the render with the other views'
-    opacities scaled, un-premultiplied and laid over the plain alpha (the brute-force renderer
-    gives both renders); where the favoured view draws nothing the plain colour stays; at 1 it
-    is the plain render."""
+    """Alpha and depth are the plain render's; the colour is the render with each view's
+    opacities scaled by its weight, un-premultiplied and laid over the plain alpha (the
+    brute-force renderer gives both renders); where the weighted render draws nothing the
+    plain colour stays; with every weight 1 it is the plain render."""
     gs, cams = _two_walls()
     target = _camera((3.0, 1.2, 0.0))  # nearest input: view 1, whose blue wall lies behind
     j = select_reference(target, cams)
     assert j == 1
     plain = render(gs, target)
-    fav = render_favouring(gs, target, j, 0.25)
+    weights = torch.tensor([0.25, 1.0])
+    fav = render_favouring(gs, target, weights)
     assert torch.equal(fav.alpha, plain.alpha) and torch.equal(fav.depth, plain.depth)
     rgb, alpha, _ = render_reference(gs, target)
-    w = torch.where(gs.views == j, 1.0, 0.25)
+    w = weights[gs.views]
     rgb_w, alpha_w, _ = render_reference(
         Gaussians(gs.means, gs.quats, gs.scales, gs.opacities * w, gs.sh), target
     )
@@ -123,18 +150,40 @@ def test_favouring_keeps_the_coverage_and_moves_the_colour_towards_the_favoured_
     assert both.sum() > 20
     bluer = fav.rgb[2][both] - plain.rgb[2][both]  # towards view 1's colour
     assert (bluer > 0).all() and float(bluer.mean()) > 0.1
-    assert torch.allclose(render_favouring(gs, target, j, 1.0).rgb, plain.rgb, atol=1e-5)
+    assert torch.allclose(render_favouring(gs, target, torch.ones(2)).rgb, plain.rgb, atol=1e-5)
     # a background stays behind both renders: the same premultiplied colour over it
     bg = torch.tensor([0.2, 0.7, 0.3])
-    on_bg = render_favouring(gs, target, j, 0.25, background=bg)
+    on_bg = render_favouring(gs, target, weights, background=bg)
     assert torch.allclose(on_bg.rgb, fav.rgb + (1 - fav.alpha) * bg[:, None, None], atol=1e-5)
+    for bad in (torch.tensor([0.25]), torch.tensor([1.0, 1.5]), torch.ones(2, 1)):
+        with pytest.raises(ValueError, match="weights"):
+            render_favouring(gs, target, bad)
+
+
+def test_an_input_camera_sees_its_own_views_colour_where_that_view_draws() -> None:
+    """At an input's own camera the other views count nothing (view_weights): the colour is
+    that view's Gaussians alone (brute force) over the plain alpha wherever they draw, the
+    other view's plain colour where only it draws."""
+    gs, cams = _two_walls()
+    images = torch.rand(2, 3, SIZE, SIZE)
+    for j, cam in enumerate(cams):
+        shown = render_view(gs, cam, images, cams, max_splat_radius=None)
+        rgb, alpha, _ = render_reference(gs, cam)
+        own_rgb, own_alpha, _ = render_reference(gs[gs.views == j], cam)
+        want = torch.where(own_alpha > 1e-3, own_rgb / own_alpha.clamp_min(1e-6) * alpha, rgb)
+        sure = (own_alpha > 1e-3) | (own_alpha < 1e-5)  # away from the 1e-4 switch
+        assert torch.allclose(shown.raw[:, sure], want[:, sure], atol=2e-4)
+        assert torch.allclose(shown.alpha, alpha, atol=1e-4)
+        only_other = (own_alpha < 1e-5) & (alpha > 0.5)
+        assert only_other.sum() > 5 if j == 0 else True  # view 1's wall reaches higher
 
 
 def test_render_view_favours_only_with_views_and_the_inputs_they_index() -> None:
     gs, cams = _two_walls()
     images = torch.rand(2, 3, SIZE, SIZE)
     target = _camera((3.0, 1.2, 0.0))
-    fav = render_favouring(gs, target, select_reference(target, cams), OTHER_VIEWS_OPACITY)
+    j = select_reference(target, cams)
+    fav = render_favouring(gs, target, view_weights(target, cams, j, OTHER_VIEWS_OPACITY))
     plain = render(gs, target).rgb
     assert torch.allclose(render_view(gs, target, images, cams).raw, fav.rgb, atol=1e-6)
     for unfavoured in (

@@ -549,6 +549,7 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
         OTHER_VIEWS_OPACITY,
         oversized_splats,
         render_favouring,
+        view_weights,
     )
     from prosplat.improve.mori import select_reference
     from prosplat.render.hole_fill import fill_colour, fill_holes
@@ -573,7 +574,7 @@ def test_fill_rows_complete_the_generator_render_and_the_enhanced_view(data):
         kept = g[~oversized_splats(g, cam, MAX_SPLAT_RADIUS)]
         assert kept.views is not None
         j = select_reference(cam, inp.cameras)
-        raw = render_favouring(kept, cam, j, OTHER_VIEWS_OPACITY)
+        raw = render_favouring(kept, cam, view_weights(cam, inp.cameras, j, OTHER_VIEWS_OPACITY))
         raw = SimpleNamespace(image=raw.rgb, alpha=raw.alpha)
         enh = rungs["enhanced"].view(g, cam, inp).image
         filled = rungs["generator filled"].view(g, cam, inp).image

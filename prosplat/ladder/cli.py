@@ -51,9 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "'generator filled ≤R', 'enhanced ≤R'")  # fmt: skip
     parser.add_argument("--other-views-opacity", type=float, nargs="*", default=[],
                         help="with the 'favour' rows: the views drawn with the other input "
-                        "views' Gaussians at these fractions of their opacity in the colour "
-                        "(the input MORI picks at full), e.g. 1 for all alike: rows 'generator "
-                        "filled ◇W', 'enhanced ◇W', 'enhanced filled ◇W'")  # fmt: skip
+                        "views' Gaussians at up to these fractions of their opacity in the "
+                        "colour, falling with distance (the input MORI picks at full), e.g. 1 "
+                        "for all alike: rows 'generator filled ◇W', 'enhanced ◇W', 'enhanced "
+                        "filled ◇W'")  # fmt: skip
     parser.add_argument("--generator", default=None, help="generator checkpoint (default shipped)")
     parser.add_argument("--generator-size", type=int, default=None,
                         help="run the generator at most this high (px, a multiple of 32; default: "
