@@ -589,7 +589,6 @@ def build_parser() -> argparse.ArgumentParser:
         "depth_weight",
         "input_depth_weight",
         "input_depth_ce_weight",
-        "input_depth_grad_weight",
         "input_render_weight",
         "crop_prob",
         "frame_prob",

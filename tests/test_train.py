@@ -681,67 +681,6 @@ def test_input_depth_ce_trains_the_depth_head_towards_the_truth(dataset, tmp_pat
         TrainConfig(data="x", out="y", input_depth_ce_weight=-1)
 
 
-def _depth_gradient_brute(pred, gt, scales=(1, 2, 4)) -> float:
-    """depth_gradient_error by loops over every pair of neighbours at every scale."""
-    per_scale = []
-    for s in scales:
-        p, g = pred[..., ::s, ::s], gt[..., ::s, ::s]
-        diffs = []
-        for idx in torch.cartesian_prod(*[torch.arange(n) for n in p.shape]).tolist():
-            idx = tuple(idx)
-            for axis in (-1, -2):
-                nb = list(idx)
-                nb[axis] += 1
-                nb = tuple(nb)
-                if nb[axis] >= p.shape[axis] or g[idx] <= 0 or g[nb] <= 0:
-                    continue
-                r0 = math.log(max(float(p[idx]), 1e-3)) - math.log(float(g[idx]))
-                r1 = math.log(max(float(p[nb]), 1e-3)) - math.log(float(g[nb]))
-                diffs.append(abs(r1 - r0))
-        if diffs:
-            per_scale.append(sum(diffs) / len(diffs))
-    return sum(per_scale) / max(len(per_scale), 1)
-
-
-def test_depth_gradient_error_costs_a_smoothed_edge_not_a_scale_error():
-    """The loop reference on random depths with holes; 0 for the truth and for the truth
-    times any factor; a step smoothed into a ramp costs nearly as much when the ramp is
-    narrow as when it is wide, where the L1 in log depth costs a narrow ramp little; pixels
-    without a surface count nothing; --input-depth-grad-weight refuses negatives."""
-    from prosplat.train.generator import depth_error, depth_gradient_error
-
-    g = torch.Generator().manual_seed(0)
-    gt = 1 + 4 * torch.rand(2, 3, 9, 10, generator=g)  # [B,V,H,W]
-    gt[0, 1, 2:5, 3:6] = 0  # no surface
-    pred = gt * (1 + 0.2 * torch.randn(gt.shape, generator=g)).clamp_min(0.1)
-    torch.testing.assert_close(
-        depth_gradient_error(pred, gt), torch.tensor(_depth_gradient_brute(pred, gt))
-    )
-    assert float(depth_gradient_error(gt, gt)) == 0
-    assert float(depth_gradient_error(gt * 1.7, gt)) < 1e-6
-    nothing = pred.clone()
-    nothing[gt == 0] = 123.0  # where nothing was hit the prediction does not matter
-    assert float(depth_gradient_error(nothing, gt)) == float(depth_gradient_error(pred, gt))
-    # an object at depth 2 in front of a wall at 6; the prediction ramps across the edge
-    step = torch.full((1, 1, 16, 32), 6.0)
-    step[..., :16] = 2.0
-    costs, l1 = [], []
-    for width in (2, 4, 8):
-        ramp = step.clone()
-        cols = torch.arange(16 - width // 2, 16 + width // 2)
-        t = (cols - cols[0] + 1).float() / (width + 1)
-        ramp[..., cols] = torch.exp(math.log(2) + t * (math.log(6) - math.log(2)))
-        costs.append(float(depth_gradient_error(ramp, step)))
-        l1.append(float(depth_error(ramp.flatten(), step.flatten(), "log")))
-    # the L1 grows with the ramp's width; the gradient term costs even the narrowest ramp
-    # more than half what the widest costs
-    assert l1[2] > 3 * l1[0] > 0
-    assert 0 < costs[0] < costs[1] < costs[2] < 2 * costs[0]
-    assert float(depth_gradient_error(pred, torch.zeros_like(gt))) == 0
-    with pytest.raises(ValueError, match="input_depth_grad_weight"):
-        TrainConfig(data="x", out="y", input_depth_grad_weight=-1)
-
-
 def test_log_depth_loss_is_the_same_at_every_scene_scale():
     """--depth-loss log scores the relative error (a scene scaled by s scores the same), while
     the inverse-depth L1 scales with 1/s; both are 0 for the true depth and reject unknown

@@ -247,13 +247,6 @@ class TrainConfig:
     # (an object flattened into the floor behind it) gets almost none; this term pushes the
     # true candidate up whatever mass it has. 0: off
     input_depth_ce_weight: float = 0.0
-    # the spatial gradients of log(predicted / Blender's) input depth, at 1, 1/2 and 1/4 of
-    # the resolution (see depth_gradient_error): the L1 terms above cost a depth edge
-    # smoothed into a narrow ramp only through its few pixels, while other cameras see the
-    # ramp as a skirt from the object down to what lies behind it; this term costs a ramp two
-    # pixels wide more than half what a wide one costs, and nothing for an error that is the
-    # same over a surface. 0: off
-    input_depth_grad_weight: float = 0.0
     # how both depth terms compare depths: "inverse" (L1 of 1/z, in scene units, so scenes of
     # small depth weigh most) or "log" (L1 of log z: the relative error AbsRel scores, the same
     # for a scene at any scale)
@@ -325,9 +318,10 @@ class TrainConfig:
             raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
         if self.grow_fine_matching < 0:
             raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
-        for name in ("input_depth_ce_weight", "input_depth_grad_weight"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.input_depth_ce_weight < 0:
+            raise ValueError(
+                f"input_depth_ce_weight must be >= 0, got {self.input_depth_ce_weight}"
+            )
         for name in ("crop_prob", "frame_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -458,9 +452,6 @@ def render_loss(
         valid = gt_d > 0
         if valid.any():
             parts["input_depth"] = depth_error(output.depths[valid], gt_d[valid], cfg.depth_loss)
-    parts["input_depth_grad"] = zero
-    if cfg.input_depth_grad_weight > 0 and "input_depths" in batch:
-        parts["input_depth_grad"] = depth_gradient_error(output.depths, batch["input_depths"])
     parts["input_depth_ce"] = zero
     if cfg.input_depth_ce_weight > 0 and "input_depths" in batch:
         if output.depth_logits is None:
@@ -475,7 +466,6 @@ def render_loss(
         + cfg.depth_weight * parts["depth"]
         + cfg.input_depth_weight * parts["input_depth"]
         + cfg.input_depth_ce_weight * parts["input_depth_ce"]
-        + cfg.input_depth_grad_weight * parts["input_depth_grad"]
     )
     return loss, {k: float(v.detach()) for k, v in parts.items()}
 
@@ -492,36 +482,6 @@ def depth_error(pred: Tensor, gt: Tensor, kind: str) -> Tensor:
     if kind == "log":
         return (pred.log() - gt.log()).abs().mean()
     return (1 / pred - 1 / gt).abs().mean()
-
-
-def depth_gradient_error(pred: Tensor, gt: Tensor, scales: tuple[int, ...] = (1, 2, 4)) -> Tensor:
-    """The mean L1 of the spatial gradients of ``log(pred / gt)`` (``pred``, ``gt``
-    [..., H, W]; gt 0 = no surface), over the pairs of neighbours that both hit a surface,
-    at every ``s``-th pixel for each of ``scales``, averaged over the scales that have pairs
-    (0 when none has).
-
-    Why gradients of the log ratio: an error that is one factor over a surface (a scale
-    error) has none, so this term is only about shape; a depth edge smoothed into a ramp
-    two pixels wide costs more than half what a wide ramp costs (between 1.3 and 2 times the
-    edge's log ratio per row crossed, before the pair count's normalisation), where an L1
-    on depth costs a narrow ramp only through its few pixels' errors (a
-    scale-invariant gradient term in the manner of MiDaS, Ranftl et al. 2020). Predictions
-    are clamped to 1e-3."""
-    ok = gt > 0
-    r = torch.where(ok, pred.clamp_min(1e-3).log() - gt.clamp_min(1e-3).log(), 0.0)
-    total, used = pred.new_zeros(()), 0
-    for s in scales:
-        rs, oks = r[..., ::s, ::s], ok[..., ::s, ::s]
-        pairs_x = oks[..., :, 1:] & oks[..., :, :-1]
-        pairs_y = oks[..., 1:, :] & oks[..., :-1, :]
-        count = pairs_x.sum() + pairs_y.sum()
-        if int(count) == 0:
-            continue
-        gx = (rs[..., :, 1:] - rs[..., :, :-1]).abs() * pairs_x
-        gy = (rs[..., 1:, :] - rs[..., :-1, :]).abs() * pairs_y
-        total = total + (gx.sum() + gy.sum()) / count
-        used += 1
-    return total / max(used, 1)
 
 
 def depth_ce(logits: Tensor, depths: Tensor, near: Tensor, far: Tensor) -> Tensor:
@@ -565,12 +525,7 @@ def depth_ce(logits: Tensor, depths: Tensor, near: Tensor, far: Tensor) -> Tenso
 def _check_packs_have_depth(ds: SceneDataset, cfg: TrainConfig) -> None:
     """A pack made with ``scenes pack --no-depth`` would silently drop the depth terms: refuse
     it when they are asked for (folders without depth are the scene's own matter)."""
-    names = (
-        "depth_weight",
-        "input_depth_weight",
-        "input_depth_ce_weight",
-        "input_depth_grad_weight",
-    )
+    names = ("depth_weight", "input_depth_weight", "input_depth_ce_weight")
     wanted = [n for n in names if getattr(cfg, n) > 0]
     if not wanted:
         return
@@ -771,10 +726,9 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     if heads:
         if cfg.ema > 0:
             raise ValueError("--ema averages prosplat generator weights, not DepthSplat heads")
-        if max(cfg.input_depth_weight, cfg.input_depth_ce_weight, cfg.input_depth_grad_weight) > 0:
+        if cfg.input_depth_weight > 0 or cfg.input_depth_ce_weight > 0:
             raise ValueError(
-                "--input-depth-weight / --input-depth-ce-weight / --input-depth-grad-weight "
-                "supervise the depth predictor, "
+                "--input-depth-weight / --input-depth-ce-weight supervise the depth predictor, "
                 "which stays frozen when fine-tuning a DepthSplat checkpoint; drop them "
                 "(--depth-weight still works)"
             )
