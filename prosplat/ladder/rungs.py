@@ -388,8 +388,9 @@ def cull_rungs(ctx: LadderContext) -> list[Rung]:
 
 @register("favour")
 def favour_rungs(ctx: LadderContext) -> list[Rung]:
-    """The generator's views with the other input views' Gaussians at a fraction of their
-    opacity in the colour (``--other-views-opacity``, :func:`prosplat.enhance.render_favouring`;
+    """The generator's views with the other input views' Gaussians at up to a fraction of
+    their opacity in the colour, less the farther they are (``--other-views-opacity``,
+    :func:`prosplat.enhance.view_weights` and :func:`~prosplat.enhance.render_favouring`;
     1 draws every view alike, as before the default favoured the nearest): rows ``generator
     filled ◇W`` and, per improvement model, ``enhanced ◇W`` and ``enhanced filled ◇W``, on the
     same reconstruction as the ``generator`` row, so they pair with the default rows target
