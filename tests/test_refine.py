@@ -111,7 +111,11 @@ def test_steps_budget_progress_and_cancel(scene):
     assert (
         res.stats.steps == 3 and res.stats.cancelled and len(res.gaussians) == len(scene["start"])
     )
-    assert not torch.equal(res.gaussians.sh, scene["start"].sh)  # what was fitted comes back
+    # what was fitted comes back; the colours stay the generator's unless asked for (REFINE_RATES)
+    assert not torch.equal(res.gaussians.means, scene["start"].means)
+    assert torch.equal(res.gaussians.sh, scene["start"].sh)
+    fitted = refine(scene["start"], images, cams, steps=3, options=RefineOptions.unregularised())
+    assert not torch.equal(fitted.gaussians.sh, scene["start"].sh)
 
     zero = refine(scene["start"], images, cams, steps=0)
     assert zero.stats.steps == 0 and torch.equal(zero.gaussians.means, scene["start"].means)
