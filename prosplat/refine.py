@@ -82,8 +82,7 @@ class LearningRates:
 #: colours kept"): the filled raw view +0.24 / +0.18 dB at 64 / 128 px on the 8 validation
 #: scenes, enhanced +0.04 / +0.01; on the 24 test scenes (where the hard scenes showed it)
 #: enhanced level; on the fox photos (refine 300) enhanced +0.13 / +0.12, LPIPS lower.
-#: Per-scene optimisation
-#: (:meth:`RefineOptions.unregularised`) fits colours, as 3DGS does.
+#: Per-scene optimisation (:meth:`RefineOptions.unregularised`) fits colours, as 3DGS does.
 REFINE_RATES = LearningRates(sh=0.0, sh_rest=0.0)
 
 
@@ -132,7 +131,8 @@ class RefineOptions:
             opacities. 0 turns it off; the default 0.1 is the measured choice (0.2 and 0.3
             raise the raw views more and cost the enhanced ones up to 0.1 dB).
         sh_degree: SH degree fitted: an int 0-3, or ``"auto"`` (:func:`sh_degree_for_views`:
-            raised only when the views allow). Bands above the Gaussians' own start at zero.
+            raised only when the views allow, and only when ``lr.sh_rest`` fits the higher
+            bands; else the Gaussians' own). Bands above the Gaussians' own start at zero.
         background: RGB behind the Gaussians (default black, as the generator renders).
         cull: render each step only the Gaussians that can touch that view (a conservative
             bound, :func:`may_touch`); the image and gradients are bitwise those of rendering
@@ -513,7 +513,10 @@ def refine(
     gaussians.validate()
 
     v = len(cameras)
-    degree = sh_degree_for_views(v) if options.sh_degree == "auto" else int(options.sh_degree)
+    if options.sh_degree != "auto":
+        degree = int(options.sh_degree)
+    else:  # higher bands only where they are fitted (REFINE_RATES keeps the colours)
+        degree = sh_degree_for_views(v) if options.lr.sh_rest > 0 else gaussians.sh_degree
     start = gaussians.detach().with_sh_degree(degree)
     dtype, device = start.means.dtype, start.means.device
     images = images.detach().to(device=device, dtype=dtype)

@@ -195,6 +195,13 @@ def test_sh_degree_rises_only_with_enough_views(scene):
     assert res.gaussians.sh.shape[1] == 4 and res.stats.sh_degree == 1
     auto = refine(scene["start"], images, cams, steps=2, options=RefineOptions(sh_degree="auto"))
     assert auto.gaussians.sh.shape[1] == 1  # 2 views: degree 0
+    # 8 views allow degree 1, but only where the colours are fitted (REFINE_RATES keeps them)
+    many_images, many_cams = images.repeat(4, 1, 1, 1), list(cams) * 4
+    kept = refine(scene["start"], many_images, many_cams, steps=1)
+    fitted = refine(scene["start"], many_images, many_cams, steps=1,
+                    options=RefineOptions(lr=LearningRates()))  # fmt: skip
+    assert kept.stats.sh_degree == 0 and fitted.stats.sh_degree == 1
+    assert fitted.gaussians.sh.shape[1] == 4
 
 
 def test_freeze_means_keeps_positions_for_the_first_steps(scene):
