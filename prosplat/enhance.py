@@ -34,7 +34,7 @@ from torch import Tensor
 from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 from prosplat.improve.epipolar import fundamental_matrix
-from prosplat.improve.mori import select_reference
+from prosplat.improve.mori import centre_distances, select_reference
 from prosplat.improve.warp import warp_for
 from prosplat.render import RenderOutput, render
 from prosplat.render.hole_fill import fill_colour
@@ -134,11 +134,10 @@ def view_weights(
     if not 0 <= favoured < len(cameras):
         raise ValueError(f"favoured view {favoured} is not one of the {len(cameras)} cameras")
     _check_other_views_opacity(other_views_opacity)
-    c_t = camera.center.double().cpu()  # [3]
-    centres = torch.stack([c.center.double().cpu() for c in cameras])  # [V,3]
-    dist = (centres - c_t).norm(dim=-1)  # [V]
+    dist = centre_distances(camera, cameras)  # [V]
     # distances within a millionth of the scene's extent count as equal (the poses' rounding)
-    eps = 1e-6 * max(float(dist.max()), float(centres.norm(dim=-1).max())) + 1e-300
+    extent = max(float(dist.max()), max(float(c.center.double().norm()) for c in cameras))
+    eps = 1e-6 * extent + 1e-300
     ratio = ((dist[favoured] + eps) / (dist + eps)).clamp(max=1.0)  # [V]
     weights = other_views_opacity * ratio
     weights[favoured] = 1.0

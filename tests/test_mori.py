@@ -9,7 +9,7 @@ import torch
 
 from prosplat import Camera, render
 from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
-from prosplat.improve.mori import mori_scores, overlap_scores, select_reference
+from prosplat.improve.mori import centre_distances, mori_scores, overlap_scores, select_reference
 
 W, H = 32, 24
 FX = 0.5 * W / math.tan(math.radians(30))  # 60° horizontal field of view
@@ -42,6 +42,19 @@ def test_paper_case_aligned_far_camera_beats_close_camera_looking_away() -> None
     assert scores.dtype == torch.float64
     torch.testing.assert_close(scores, torch.tensor([0.5, 1 / 3 + 1.0], dtype=torch.float64))
     assert select_reference(target, [close_away, far_aligned]) == 1
+
+
+def test_centre_distances_are_the_euclidean_distances_of_the_camera_centres() -> None:
+    target = _cam((0.5, -1.0, 2.0), (0, 0, 1))
+    eyes = [(0.5, -1.0, 2.0), (3.5, 3.0, 2.0), (-1.5, -1.0, -4.0)]
+    inputs = [_cam(e, _yaw(40.0 * j)) for j, e in enumerate(eyes)]
+    dist = centre_distances(target, inputs)
+    assert dist.dtype == torch.float64 and dist.shape == (3,)
+    assert torch.allclose(dist, torch.tensor([0.0, 5.0, math.sqrt(40.0)], dtype=torch.float64))
+    # the paper's first term is their reciprocal: move input 1 farther and its score falls by it
+    far = [inputs[0], _cam((6.5, 7.0, 2.0), _yaw(40.0)), inputs[2]]
+    drop = mori_scores(target, inputs)[1] - mori_scores(target, far)[1]
+    assert float(drop) == pytest.approx(1 / 5.0 - 1 / 10.0)
 
 
 def test_coincident_target_selects_that_input_with_finite_scores() -> None:

@@ -23,7 +23,7 @@ from torch import Tensor
 
 from prosplat.camera import Camera
 
-__all__ = ["mori_scores", "overlap_scores", "select_reference"]
+__all__ = ["centre_distances", "mori_scores", "overlap_scores", "select_reference"]
 
 # A target closer to an input than this fraction of the rig's scale counts as coincident with
 # it: 1/distance is clamped there, so the score stays finite (≈1e9 / scale, far above any
@@ -48,6 +48,14 @@ def _check_cameras(target: Camera, inputs: Sequence[Camera], caller: str) -> Non
             )
 
 
+def centre_distances(target: Camera, inputs: Sequence[Camera]) -> Tensor:
+    """[N] float64 on the CPU: the distance from ``target``'s camera centre to each input's
+    (MORI's first term; :func:`prosplat.enhance.view_weights` weighs the views by them)."""
+    c_t = target.center.double().cpu()  # [3]
+    centres = torch.stack([c.center.double().cpu() for c in inputs])  # [N, 3]
+    return (centres - c_t).norm(dim=-1)
+
+
 def mori_scores(target: Camera, inputs: Sequence[Camera]) -> Tensor:
     """The paper's MORI score of every input view for ``target`` (higher overlaps more).
 
@@ -63,11 +71,9 @@ def mori_scores(target: Camera, inputs: Sequence[Camera]) -> Tensor:
         [N] float64 scores.
     """
     _check_cameras(target, inputs, "mori_scores")
-    c_t = target.center.double().cpu()
     z_t = target.forward.double().cpu()
-    centers = torch.stack([c.center.double().cpu() for c in inputs])  # [N, 3]
     forwards = torch.stack([c.forward.double().cpu() for c in inputs])  # [N, 3]
-    dist = (centers - c_t).norm(dim=-1)  # [N]
+    dist = centre_distances(target, inputs)  # [N]
     scale = float(dist.max())
     eps = _COINCIDENT_REL_EPS * scale if scale > 0 else 1.0
     cos = torch.nn.functional.cosine_similarity(forwards, z_t[None], dim=-1)  # [N]
