@@ -11,8 +11,9 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
 3. takes near/far from ``--near/--far``, else from the transforms file's ``near``/``far``
    (per frame or top level), else from the COLMAP points the inputs see, else from the
    cameras (:func:`prosplat.pipeline.near_far_from_cameras`);
-4. reconstructs (optionally refining, ``--refine-steps/--refine-seconds``), prunes to the
-   Gaussian budget and writes ``gaussians.ply``;
+4. reconstructs, prunes to the Gaussian budget (``--budget``), optionally refines what the
+   budget kept against the inputs (``--refine-steps/--refine-seconds``, with a progress
+   bar) and writes ``gaussians.ply``;
 5. renders ``--render`` cameras (``held-out``, ``all``, ``none``, names, or a camera path:
    a ``transforms.json`` of pinhole cameras) raw and enhanced, and with ``--distill-steps``
    once more from the Gaussians fitted to the inputs and those enhanced views
@@ -129,9 +130,19 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         "less the farther they are; the coverage is all of them "
         f"(default {OTHER_VIEWS_OPACITY:g}; 1: every input alike)",
     )
-    p.add_argument("--refine-steps", type=int, default=None, help="refinement steps (optional)")
     p.add_argument(
-        "--refine-seconds", type=float, default=None, help="refinement time limit (optional)"
+        "--refine-steps",
+        type=int,
+        default=None,
+        help="fit the Gaussians to the inputs for this many steps after the budget (default "
+        "none; 0: none). On real photos 1000 steps beat the pasted nearest input in PSNR and "
+        "LPIPS (the fox, README 'Refinement'); on synthetic scenes 100 buy most of the gain",
+    )
+    p.add_argument(
+        "--refine-seconds",
+        type=float,
+        default=None,
+        help="... or for this many seconds (> 0), instead of --refine-steps",
     )
     p.add_argument("--overwrite", action="store_true", help="allow a non-empty --out")
 
@@ -192,9 +203,15 @@ def refine_kwargs(model, steps: int | None, seconds: float | None) -> dict:
     """``refine_steps`` / ``refine_seconds`` for ``model.reconstruct``, only those given.
 
     Raises:
-        ValueError: one is given but the installed ``ProSplat.reconstruct`` has no such
-            parameter (a ProSplat without the refinement stage).
+        ValueError: a negative step count or a time budget <= 0, both given, or one given
+            but the installed ``ProSplat.reconstruct`` has no such parameter (a ProSplat
+            without the refinement stage).
     """
+    from prosplat.refine import check_refine_args
+
+    check_refine_args(0 if steps is None else steps, seconds)  # before any work
+    if steps is not None and seconds is not None:
+        raise ValueError("give --refine-steps or --refine-seconds, not both")
     kwargs = {}
     if steps is not None:
         kwargs["refine_steps"] = steps
@@ -352,20 +369,46 @@ def load_model(args: argparse.Namespace):
 
 
 def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
-    """(Gaussians, seconds, note): refinement when asked, else generator + budget pruning."""
+    """(Gaussians, seconds, note): generator + budget pruning, then refinement when asked.
+
+    ``--budget`` prunes in both cases (refinement fits only the Gaussians the budget keeps,
+    :meth:`~prosplat.ProSplat.reconstruct_refined`), and refinement shows a progress bar
+    (steps, or seconds under ``--refine-seconds``) and its statistics in the note, since it
+    is the one step here that can run for tens of seconds."""
+    from tqdm import tqdm
 
     kwargs = refine_kwargs(model, args.refine_steps, args.refine_seconds)
+    budget = args.budget
+    budget = None if budget is None else (int(budget) if budget > 1 else budget)
     t0 = time.perf_counter()
-    if kwargs:
-        g = model.reconstruct(images, cameras, near, far, **kwargs).detach()
-        note = ", ".join(f"{k}={v}" for k, v in kwargs.items())
-    else:
-        budget = args.budget
-        budget = None if budget is None else (int(budget) if budget > 1 else budget)
+    steps, seconds = kwargs.get("refine_steps") or None, kwargs.get("refine_seconds") or None
+    if steps is None and seconds is None:
         pruned = model.reconstruct_pruned(images, cameras, near, far, budget=budget)
         g, stats = pruned.gaussians, pruned.stats
         note = f"budget kept {stats['kept']:,} of {stats['input']:,}"
-    return g, time.perf_counter() - t0, note
+        return g, time.perf_counter() - t0, note
+    # under a time budget the bar counts seconds, so it ends where the budget does
+    total = steps if steps is not None else round(seconds, 1)
+    unit = "step" if steps is not None else "s"
+    fmt = None if steps is not None else "{l_bar}{bar}| {n:.1f}/{total:.1f} s [{elapsed}{postfix}]"
+    with tqdm(total=total, desc="refining against the inputs", unit=unit, bar_format=fmt) as bar:
+        t_fit = time.perf_counter()
+
+        def progress(step: int, _total, loss: float) -> None:
+            done = step if steps is not None else min(time.perf_counter() - t_fit, total)
+            bar.set_postfix(loss=f"{loss:.4f}", refresh=False)
+            bar.update(done - bar.n)  # tqdm redraws at most every 0.1 s
+
+        result = model.reconstruct_refined(
+            images, cameras, near, far, steps=steps, seconds=seconds, budget=budget,
+            progress=progress,
+        )  # fmt: skip
+    st = result.stats
+    note = (
+        f"budget kept {st.n_gaussians:,} of {st.pruned_from:,}; refined {st.steps} steps in "
+        f"{st.seconds:.1f} s, input-view loss {st.initial_loss:.4f} -> {st.final_loss:.4f}"
+    )
+    return result.gaussians.detach(), time.perf_counter() - t0, note
 
 
 def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import inspect
 import json
 from pathlib import Path
 
@@ -188,15 +187,33 @@ def test_refine_flags_are_passed_only_when_given():
     assert refine_kwargs(Refining(), None, 2.5) == {"refine_seconds": 2.5}
 
 
-def test_refine_flag_on_the_installed_pipeline(colmap_text, tmp_path, capsys):
-    """Until prosplat.refine merges, --refine-steps is a clear error; after, it runs."""
-    code = cli("reconstruct", colmap_text, "--out", tmp_path / "out", "--size", "32",
-               "--num-inputs", "2", "--render", "none", "--refine-steps", "2")  # fmt: skip
-    if "refine_steps" in inspect.signature(ProSplat.reconstruct).parameters:
-        assert code == 0
-    else:
-        assert code == 2
-        assert "no refinement stage" in _one_line_error(capsys, "reconstruct")
+def test_refine_keeps_the_budget_and_reports_its_fit(colmap_text, tmp_path, capsys):
+    """--budget prunes before refinement as without it (it was dropped when refining before
+    2026-11-28), a progress bar shows the steps and the report says what the fit did."""
+    out = tmp_path / "out"
+    assert cli("reconstruct", colmap_text, "--out", out, "--size", "32", "--num-inputs", "2",
+               "--render", "none", "--refine-steps", "3", "--budget", "300") == 0  # fmt: skip
+    assert len(read_ply(out / "gaussians.ply")) == 300
+    assert "refining against the inputs" in capsys.readouterr().err
+    report = (out / "report.md").read_text()
+    assert "budget kept 300 of 2,048; refined 3 steps in" in report
+    assert "input-view loss" in report
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (("--refine-steps", "-1"), "--refine-steps must be >= 0"),
+        (("--refine-seconds", "0"), "--refine-seconds must be a number of seconds > 0"),
+        (("--refine-steps", "5", "--refine-seconds", "2"), "not both"),
+    ],
+)
+def test_bad_refine_flags_fail_before_any_work(colmap_text, tmp_path, capsys, flags, message):
+    out = tmp_path / "out"
+    code = cli("reconstruct", colmap_text, "--out", out, "--size", "32", "--render", "none", *flags)
+    assert code == 2
+    assert message in _one_line_error(capsys, "reconstruct")
+    assert not out.exists()  # nothing written
 
 
 def test_eval_posed_scores_the_rows_and_shows_them(colmap_text, tmp_path, capsys):
