@@ -48,7 +48,7 @@ from torch import Tensor
 from prosplat.camera import Camera
 from prosplat.gaussians import Gaussians
 
-__all__ = ["prune_gaussians", "prune_pixel_aligned", "importance"]
+__all__ = ["budget_arg", "prune_gaussians", "prune_pixel_aligned", "importance"]
 
 _RANGE_SLACK = 1e-3  # relative: a Gaussian exactly at near/far is never dropped by rounding
 
@@ -254,6 +254,13 @@ def importance(gaussians: Gaussians, view_index: Tensor, cameras: list[Camera]) 
         area = math.pi / torch.sqrt(det_conic)
         score[idx] = torch.where(p.valid, g.opacities[idx].to(torch.float64) * area, 0.0)
     return score
+
+
+def budget_arg(value: float | None) -> int | float | None:
+    """A ``--budget`` as given on a command line (a float) as the pruning functions take it:
+    None (automatic) stays None, a count above 1 becomes an int, and a fraction (<= 1) stays
+    a float (:func:`_budget_count` tells the two apart by type)."""
+    return None if value is None else (int(value) if value > 1 else value)
 
 
 def _budget_count(budget: int | float, n_input: int) -> int:

@@ -278,12 +278,13 @@ def cmd_eval_generator(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from prosplat import evaluate
+    from prosplat.budget import budget_arg
     from prosplat.data import find_scenes, load_scene
     from prosplat.pipeline import ProSplat
     from prosplat.refine import check_refine_args
 
     methods = {}
-    budget = int(args.budget) if args.budget and args.budget > 1 else args.budget
+    budget = budget_arg(args.budget)
     try:
         check_refine_args(args.refine_steps, args.refine_seconds)
     except ValueError as e:

@@ -226,7 +226,7 @@ def _refine(cfg: DemoConfig, gaussians, images: Tensor, cameras: list[Camera], d
 
 def run_demo(cfg: DemoConfig) -> DemoResult:
     """Run the whole demo into a fresh folder (see the module docstring); returns the numbers."""
-    from prosplat.budget import prune_pixel_aligned
+    from prosplat.budget import budget_arg, prune_pixel_aligned
     from prosplat.demo_report import write_report
     from prosplat.metrics import lpips, psnr, ssim
     from prosplat.paths import fresh_folder
@@ -266,7 +266,7 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     t_recon = time.perf_counter() - t0
     g_all, depths = recon.gaussians(0), recon.depths[0]
     t0 = time.perf_counter()
-    budget = None if cfg.budget is None else (int(cfg.budget) if cfg.budget > 1 else cfg.budget)
+    budget = budget_arg(cfg.budget)
     gaussians, _, stats = prune_pixel_aligned(g_all, depths, in_cams, budget=budget)
     t_prune = time.perf_counter() - t0
     print(

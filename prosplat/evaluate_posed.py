@@ -39,6 +39,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from prosplat.budget import budget_arg
 from prosplat.camera import Camera
 from prosplat.enhance import OTHER_VIEWS_OPACITY
 from prosplat.evaluate import Score, markdown_table, score_view, summarise
@@ -311,8 +312,7 @@ def run(args: argparse.Namespace) -> int:
             cases.append(PosedCase(images, cameras, t_images, t_cams, near, far, case_name))
             lines.append(f"{case_name}: inputs {', '.join(posed.views[i].name for i in chosen)}, "
                          f"{len(targets)} targets, near/far {near:.3g}/{far:.3g}")  # fmt: skip
-        budget = args.budget
-        budget = None if budget is None else (int(budget) if budget > 1 else budget)
+        budget = budget_arg(args.budget)
         sheet: list[list[Tensor]] = []
         rows = score_cases(model, cases, budget=budget, background=background,
                            reconstruct_kwargs=kwargs, sheet=sheet,

@@ -377,9 +377,10 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
     is the one step here that can run for tens of seconds."""
     from tqdm import tqdm
 
+    from prosplat.budget import budget_arg
+
     kwargs = refine_kwargs(model, args.refine_steps, args.refine_seconds)
-    budget = args.budget
-    budget = None if budget is None else (int(budget) if budget > 1 else budget)
+    budget = budget_arg(args.budget)
     t0 = time.perf_counter()
     steps, seconds = kwargs.get("refine_steps") or None, kwargs.get("refine_seconds") or None
     if steps is None and seconds is None:

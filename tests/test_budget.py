@@ -10,7 +10,9 @@ import torch
 from prosplat import Camera, Gaussians, render
 from prosplat.budget import (
     _bilinear,
+    _budget_count,
     _dither_rank,
+    budget_arg,
     importance,
     prune_gaussians,
     prune_pixel_aligned,
@@ -268,3 +270,12 @@ def test_prune_pixel_aligned_derives_the_view_index_from_the_depth_maps(scene):
     _, keep, stats = prune_gaussians(g, vi, depths, cams, budget=0.3)
     pruned, keep2, stats2 = prune_pixel_aligned(g, depths, cams, budget=0.3)
     assert torch.equal(keep, keep2) and stats == stats2 and len(pruned) == stats["kept"]
+
+
+def test_budget_arg_reads_a_count_or_a_fraction_as_the_pruning_does():
+    """``--budget 300`` keeps 300 Gaussians, ``--budget 0.25`` a quarter, none: automatic."""
+    assert budget_arg(None) is None
+    count, fraction, whole = budget_arg(300.0), budget_arg(0.25), budget_arg(1.0)
+    assert isinstance(count, int) and count == 300
+    assert isinstance(fraction, float) and isinstance(whole, float)
+    assert [_budget_count(b, 1000) for b in (count, fraction, whole)] == [300, 250, 1000]

@@ -167,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
+    from prosplat.budget import budget_arg
     from prosplat.data import find_scenes, load_scene
     from prosplat.ladder import report
     from prosplat.ladder.run import evaluate_scene, warm_up
@@ -185,10 +186,7 @@ def run(args: argparse.Namespace) -> int:
             if not found:
                 raise FileNotFoundError(f"no scene folders in {root} (no */transforms.json)")
             folders += found
-        budget = args.budget
-        if budget is not None and budget > 1:
-            budget = int(budget)
-        options = dict(vars(args), budget=budget)
+        options = dict(vars(args), budget=budget_arg(args.budget))
         rungs = build_rungs(args.rows, LadderContext(options), log=print)
         if not rungs:
             raise ValueError("no ladder row can run")
