@@ -94,9 +94,7 @@ class DemoConfig:
             raise ValueError(f"--budget must be a count or a fraction in (0, 1], got {self.budget}")
         from prosplat.refine import check_refine_args
 
-        check_refine_args(self.refine_steps, self.refine_seconds)
-        if self.refine_steps and self.refine_seconds is not None:
-            raise ValueError("give --refine-steps or --refine-seconds, not both")
+        check_refine_args(self.refine_steps, self.refine_seconds, one_run=True)
 
 
 @dataclass

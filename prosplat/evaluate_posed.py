@@ -294,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
                 print(missing_note(target_set))
         sets = input_sets(posed, inputs, args.input_sets, fixed=bool(args.inputs))
         model = load_model(args)
-        kwargs = refine_kwargs(model, args.refine_steps, args.refine_seconds)
+        kwargs = refine_kwargs(args.refine_steps, args.refine_seconds)
         name = posed.source.parent.name if posed.kind == "transforms" else posed.source.name
         cases, lines = [], []
         for k, chosen in enumerate(sets):

@@ -629,13 +629,10 @@ class ProSplat:
             :class:`prosplat.refine.RefineResult` (``gaussians``, ``stats``); ``stats`` also
             carries ``generator_s`` and ``prune_s`` (seconds) and ``pruned_from`` (count).
         """
-        from prosplat.refine import check_images, refine
+        from prosplat.refine import check_budget, check_images, refine
 
         check_images(images, list(cameras), "reconstruct")
-        if steps is not None and seconds is not None:
-            raise ValueError(
-                "give refine_steps or refine_seconds, not both (a step count or a time budget)"
-            )
+        check_budget(steps, seconds)  # before the generator runs
         cameras = list(cameras)
         # no scene-wide depth factor: refinement fits the inputs better from the local sweep's
         # depth (BENCHMARKS.md, "A scene-wide depth factor")

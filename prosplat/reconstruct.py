@@ -27,7 +27,6 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
 from __future__ import annotations
 
 import argparse
-import inspect
 import sys
 import time
 from dataclasses import dataclass, field
@@ -199,31 +198,21 @@ def out_folder(out: Path, overwrite: bool) -> Path:
     return out
 
 
-def refine_kwargs(model, steps: int | None, seconds: float | None) -> dict:
-    """``refine_steps`` / ``refine_seconds`` for ``model.reconstruct``, only those given.
+def refine_kwargs(steps: int | None, seconds: float | None) -> dict:
+    """``refine_steps`` / ``refine_seconds`` for ``ProSplat.reconstruct``, only those given.
 
     Raises:
-        ValueError: a negative step count or a time budget <= 0, both given, or one given
-            but the installed ``ProSplat.reconstruct`` has no such parameter (a ProSplat
-            without the refinement stage).
+        ValueError: a negative step count, a time budget <= 0, or both a step count > 0 and
+            a time budget (checked before any work).
     """
     from prosplat.refine import check_refine_args
 
-    check_refine_args(0 if steps is None else steps, seconds)  # before any work
-    if steps is not None and seconds is not None:
-        raise ValueError("give --refine-steps or --refine-seconds, not both")
+    check_refine_args(0 if steps is None else steps, seconds, one_run=True)
     kwargs = {}
     if steps is not None:
         kwargs["refine_steps"] = steps
     if seconds is not None:
         kwargs["refine_seconds"] = seconds
-    params = inspect.signature(model.reconstruct).parameters
-    missing = [k for k in kwargs if k not in params]
-    if missing:
-        raise ValueError(
-            f"this ProSplat has no refinement stage (ProSplat.reconstruct takes no "
-            f"{', '.join(missing)}); drop --refine-steps/--refine-seconds or update prosplat"
-        )
     return kwargs
 
 
@@ -379,7 +368,7 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
 
     from prosplat.budget import budget_arg
 
-    kwargs = refine_kwargs(model, args.refine_steps, args.refine_seconds)
+    kwargs = refine_kwargs(args.refine_steps, args.refine_seconds)
     budget = budget_arg(args.budget)
     t0 = time.perf_counter()
     steps, seconds = kwargs.get("refine_steps") or None, kwargs.get("refine_seconds") or None
@@ -428,7 +417,7 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     which = render_selection(posed.names, inputs, args.render, args.max_renders)
     path = path_cameras(args.render, size)
     model = load_model(args)
-    refine_kwargs(model, args.refine_steps, args.refine_seconds)  # fail before any work
+    refine_kwargs(args.refine_steps, args.refine_seconds)  # fail before any work
     if args.distill_steps < 0:
         raise ValueError(f"--distill-steps must be >= 0 (0: off), got {args.distill_steps}")
     if args.distill_steps and (model.improver is None or not which and not path):

@@ -39,6 +39,7 @@ from prosplat.render import render
 from prosplat.render.projection import DILATION, FOV_CLAMP, MIN_ALPHA, NEAR_PLANE
 
 __all__ = [
+    "check_budget",
     "check_refine_args",
     "LearningRates",
     "REFINE_RATES",
@@ -418,11 +419,16 @@ def check_images(images: Tensor, cameras: Sequence[Camera], what: str = "refine"
             )
 
 
-def _check_budget(steps, seconds) -> None:
+def check_budget(steps, seconds) -> None:
+    """The library's form of a refinement budget: exactly one of ``steps`` (an integer >= 0)
+    and ``seconds`` (a finite number > 0), the other None. Callers that run the generator
+    first (:meth:`prosplat.ProSplat.reconstruct_refined`, the add-on's worker) check it
+    before that work, so a bad budget costs nothing."""
     if (steps is None) == (seconds is None):
+        which = "not both" if steps is not None else "got neither"
         raise ValueError(
-            "refine: give exactly one of steps= (a step count) or seconds= (a time budget), "
-            f"got steps={steps!r}, seconds={seconds!r}"
+            f"refine: give steps= (a step count) or seconds= (a time budget), {which}: "
+            f"steps={steps!r}, seconds={seconds!r}"
         )
     if steps is not None and (
         isinstance(steps, bool)
@@ -501,7 +507,7 @@ def refine(
             f"refine: gaussians must be prosplat.Gaussians, got {type(gaussians).__name__}"
         )
     cameras = list(cameras)
-    _check_budget(steps, seconds)
+    check_budget(steps, seconds)
     check_images(images, cameras)
     _check_depths(depths, images)
     if view_index is not None:
@@ -647,11 +653,21 @@ def refine(
     return RefineResult(result, stats)
 
 
-def check_refine_args(steps: list[int] | int, seconds: list[float] | float | None) -> None:
-    """--refine-steps must be integers >= 0 and --refine-seconds finite numbers > 0."""
+def check_refine_args(
+    steps: list[int] | int, seconds: list[float] | float | None, *, one_run: bool = False
+) -> None:
+    """--refine-steps must be integers >= 0 and --refine-seconds finite numbers > 0.
+
+    ``one_run``: the flags describe one refinement (``demo``, ``reconstruct``, ``eval
+    posed``), so a step count > 0 and a time budget are not both allowed; the ladder takes
+    lists of both, one row each."""
     steps = steps if isinstance(steps, list) else [steps]
     seconds = seconds if isinstance(seconds, list) else [] if seconds is None else [seconds]
     if bad := [s for s in steps if s < 0]:
         raise ValueError(f"--refine-steps must be >= 0 (0: no refinement), got {bad}")
     if bad := [s for s in seconds if not (math.isfinite(s) and s > 0)]:
         raise ValueError(f"--refine-seconds must be a number of seconds > 0, got {bad}")
+    if one_run and any(steps) and seconds:
+        raise ValueError(
+            "give --refine-steps or --refine-seconds, not both (a step count or a time budget)"
+        )

@@ -283,8 +283,8 @@ def test_opacity_and_scale_terms_pull_their_way(scene):
 @pytest.mark.parametrize(
     "change, message",
     [
-        (dict(steps=None), "exactly one of steps"),
-        (dict(steps=5, seconds=1.0), "exactly one of steps"),
+        (dict(steps=None), "got neither"),
+        (dict(steps=5, seconds=1.0), "not both"),
         (dict(steps=-1), "integer >= 0"),
         (dict(steps=2.5), "integer >= 0"),
         (dict(steps=None, seconds=0.0), "seconds must be a finite number > 0"),

@@ -155,6 +155,7 @@ def test_generator_v8_default_scenes_are_v7s(root: Path) -> None:
     [
         ("train_generator_v17.sh", "runs/gen_v17a", "13", "1", "10003"),
         ("train_generator_v17b.sh", "runs/gen_v17b", "14", "2", "10420"),
+        ("train_generator_v19.sh", "runs/gen_v19", "19", "2", "10003"),
     ],
 )
 def test_generator_v17_and_v17b_go_on_from_v16_with_its_fill_recipe(
@@ -165,7 +166,7 @@ def test_generator_v17_and_v17b_go_on_from_v16_with_its_fill_recipe(
     into runs/gen_v17a; v17b is v17 with batch seed 14 on two threads into runs/gen_v17b. By
     default v17 asks for the 527 scenes of rounds 0-6 and v17b for rounds 7-8 only (from seed
     10420), so on the fake set each stops at its first missing seed (v17b at none of rounds
-    0-6)."""
+    0-6). v19 is v17 with batch seed 19 on two threads on all 28 rounds (2,016 scenes)."""
     (root / "runs").mkdir(exist_ok=True)
     (root / "runs" / "generator_v16.safetensors").write_bytes(b"")  # shipped_before keeps it
     fake_echo = root / "echo_threads"

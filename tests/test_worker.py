@@ -357,8 +357,13 @@ def test_reconstruct_refines_with_progress_and_esc_mid_refinement(scene, tmp_pat
     assert all(0.8 <= f <= 0.9 for f, _ in refining)
     assert res["count"] == plain["count"] and res["seconds"]["refine"] > 0
     assert not np.array_equal(res["arrays"]["position"], plain["arrays"]["position"])
-    with pytest.raises(ValueError, match="not both"):
-        run_task("reconstruct", {**params, "refine_steps": 3, "refine_seconds": 1.0})
+    refused = []
+    with pytest.raises(ValueError, match="not both"):  # refused before any work
+        run_task(
+            "reconstruct", {**params, "refine_steps": 3, "refine_seconds": 1.0},
+            Progress(lambda f, m: refused.append(m)),
+        )  # fmt: skip
+    assert refused == []
 
     def esc_after_two_steps(fraction: float, message: str) -> None:
         if message.startswith("refining against the inputs: step 2"):

@@ -169,6 +169,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     """Generator on the input views -> pruned Gaussians (point attributes, optional PLY)."""
 
     t0 = time.perf_counter()
+    refine_budget = _refine_budget(params)  # a bad budget is refused before any work
     device = pick_device(params.get("device"))
     progress(0.02, "loading the generator")
     model = load_model(params.get("weights"), device)
@@ -189,7 +190,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     progress(
         0.35, f"running the generator on {len(cameras)} views{sweep}, then the Gaussian budget"
     )
-    refining = bool(params.get("refine_steps") or params.get("refine_seconds"))
+    refining = any(b is not None for b in refine_budget)
     pruned = model.reconstruct_pruned(
         images.to(device), cameras, params.get("near"), params.get("far"),
         budget=params.get("budget") or None, depth_scale=not refining,
@@ -228,15 +229,24 @@ def generator_info(generator) -> dict[str, str]:
             "variant": str(getattr(generator.encoder, "variant", "")), "licence": generator.licence}  # fmt: skip
 
 
+def _refine_budget(params: dict) -> tuple[int | None, float | None]:
+    """(steps, seconds) of the task's refinement, (None, None) when off (0 or missing);
+    checked here, before the generator runs, so a bad budget costs nothing."""
+    from prosplat.refine import check_budget
+
+    steps, seconds = params.get("refine_steps") or None, params.get("refine_seconds") or None
+    if steps is not None or seconds is not None:
+        check_budget(steps, seconds)
+    return steps, seconds
+
+
 def _refine(params: dict, g: Gaussians, images, cameras, depths, progress: Progress):
     """Refine the pruned Gaussians against the inputs (``refine_steps`` or ``refine_seconds``,
     0/None: off; not both), reporting each step between 0.8 and 0.9; a cancel raises
     :class:`~prosplat.worker.Cancelled` like every other step. Returns (Gaussians, seconds)."""
     from prosplat.refine import refine
 
-    steps, seconds = params.get("refine_steps") or None, params.get("refine_seconds") or None
-    if steps is not None and seconds is not None:
-        raise ValueError("give refine_steps or refine_seconds, not both")
+    steps, seconds = _refine_budget(params)
     start = time.perf_counter()
 
     def report(step: int, total, loss: float) -> None:
