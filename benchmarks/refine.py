@@ -110,12 +110,12 @@ def sweep(args) -> None:
         imgs, cams, near, far, timgs, tcams = scene_inputs(sc, args.views, args.size)
         # 0: the generator at --size (this benchmark's default); N: at most N px high
         # the one-pass rows as the pipeline runs them (with the depth sweep's scene-wide
-        # factor); refinement starts without it, as ProSplat.reconstruct_refined does
+        # factor); refinement starts from them, as ProSplat.reconstruct_refined does
         height = args.generator_size or 0
         one_pass = model.reconstruct_pruned(imgs, cams, near, far, generator_height=height)
-        pruned = (  # --scaled-start: refine from the one-pass Gaussians, factor applied
+        pruned = (  # --local-start: refine from the local sweep's depth, factor left out
             one_pass
-            if args.scaled_start
+            if not args.local_start
             else model.reconstruct_pruned(
                 imgs, cams, near, far, generator_height=height, depth_scale=False
             )
@@ -227,10 +227,10 @@ def main() -> None:
     ap.add_argument("--seconds", default="", help="time budgets (s) run for each variant")
     ap.add_argument("--variants", default=None, help=f"comma-separated of {list(VARIANTS)}")
     ap.add_argument(
-        "--scaled-start",
+        "--local-start",
         action="store_true",
-        help="refine from the one-pass Gaussians (the depth sweep's scene-wide factor applied) "
-        "instead of from the local sweep's depth, as the pipeline refines",
+        help="refine from the local sweep's depth (the depth sweep's scene-wide factor left "
+        "out, as the pipeline refined until 2026-11-28) instead of from the one-pass Gaussians",
     )
     ap.add_argument("--ablations", default="", help="variants run only at --ablation-steps")
     ap.add_argument("--ablation-steps", default="100")

@@ -7,8 +7,8 @@ scene-wide factor of :func:`prosplat.depth_sweep.scale_search`) and without the 
 (``depth_scale=False``); the two keep the same Gaussians, so the factor chosen is the ratio
 of their depths. Each target is scored raw and enhanced and, with
 ``--refine-steps N``, after N steps of refinement from each variant's own Gaussians and
-enhanced (what refining from the scaled depth would give: the pipeline itself refines
-without the factor, ``depth_scale=False``); the table gives both means
+enhanced (the pipeline refines from the scaled depth, the "on" variant, since 2026-11-28;
+before, from the local sweep's); the table gives both means
 and the paired difference with a 95 % bootstrap interval, overall and per scene type, and
 the factors the search chose.
 

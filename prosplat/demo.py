@@ -257,10 +257,9 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     )
     t0 = time.perf_counter()
     # the generator at the demo's size, then the depth sweep the pipeline runs by default;
-    # Gaussians that will be refined start without its scene-wide factor, as the pipeline's
-    # (ProSplat.reconstruct_refined: refinement fits the inputs better from there)
+    # refinement starts from these Gaussians, as the pipeline's (ProSplat.reconstruct_refined)
     refining = bool(cfg.refine_steps or cfg.refine_seconds is not None)
-    recon, _ = model.generate(in_images, in_cams, near, far, height=0, depth_scale=not refining)
+    recon, _ = model.generate(in_images, in_cams, near, far, height=0)
     t_recon = time.perf_counter() - t0
     g_all, depths = recon.gaussians(0), recon.depths[0]
     t0 = time.perf_counter()

@@ -294,8 +294,9 @@ def scale_search(
     sweep cannot see that where its windows match nothing; rendering can, because each
     view's colours must land on the other views' pixels. On the test scenes the enhanced
     views gain +0.15 / +0.09 / +0.03 dB at 64 / 128 / 256 px (BENCHMARKS.md, "A scene-wide
-    depth factor"). Refinement does not start from it (:meth:`prosplat.ProSplat.generate`'s
-    ``depth_scale``): on the fox photos it refines 0.6 dB worse from the scaled depth.
+    depth factor"). Refinement starts from it too: with generator v7 the fox photos refined
+    0.6 dB worse from the scaled depth, with v16 they are level and the near-far scene no
+    longer loses to one pass (BENCHMARKS.md, "Refinement from the one-pass Gaussians").
 
     Returns:
         the winning factor and ``[(factor, loss), ...]`` for every candidate.

@@ -621,9 +621,9 @@ class ProSplat:
         ``cancel()`` as in :func:`~prosplat.refine.refine`. ``generator_height``: the generator
         runs at most this high (:meth:`generator_views`; None: :attr:`trained_size`, 0: the
         inputs' size) and refinement fits the full-size ``images``; the depth term is then off
-        (its maps are the generator's size). The depth sweep's scene-wide factor is left out
-        (``depth_scale=False``): refinement fits the inputs better from the local sweep's
-        depth.
+        (its maps are the generator's size). Refinement starts from the one-pass Gaussians,
+        the depth sweep's scene-wide factor included, so 0 steps is the one-pass scene
+        (BENCHMARKS.md, "Refinement from the one-pass Gaussians").
 
         Returns:
             :class:`prosplat.refine.RefineResult` (``gaussians``, ``stats``); ``stats`` also
@@ -634,16 +634,8 @@ class ProSplat:
         check_images(images, list(cameras), "reconstruct")
         check_budget(steps, seconds)  # before the generator runs
         cameras = list(cameras)
-        # no scene-wide depth factor: refinement fits the inputs better from the local sweep's
-        # depth (BENCHMARKS.md, "A scene-wide depth factor")
         pruned = self.reconstruct_pruned(
-            images,
-            cameras,
-            near,
-            far,
-            budget=budget,
-            generator_height=generator_height,
-            depth_scale=False,
+            images, cameras, near, far, budget=budget, generator_height=generator_height
         )
         g = pruned.gaussians
         result = refine(

@@ -115,9 +115,9 @@ def test_demo_bad_arguments_exit_2(tmp_path, capsys, bad, message):
 
 
 @pytest.mark.parametrize("refine_steps", [0, 3])
-def test_demo_refines_without_the_scene_wide_factor(first_run, tmp_path, monkeypatch, refine_steps):
-    """The demo asks the generator for the depth sweep's scene-wide factor only when it does not
-    refine: refinement starts from the local sweep's depth, as everywhere else in the pipeline
+def test_demo_refines_from_the_one_pass_gaussians(first_run, tmp_path, monkeypatch, refine_steps):
+    """The demo asks the generator for the depth sweep's scene-wide factor whether or not it
+    refines: refinement starts from the one-pass Gaussians, as everywhere else in the pipeline
     (ProSplat.reconstruct_refined). Blender is replaced by a copy of the first run's scene."""
     import shutil
 
@@ -138,5 +138,5 @@ def test_demo_refines_without_the_scene_wide_factor(first_run, tmp_path, monkeyp
     monkeypatch.setattr(ProSplat, "generate", spy)
     monkeypatch.setattr(demo, "render_scene_with_blender", scene_copy)
     res = run_demo(DemoConfig(out=tmp_path / "d", refine_steps=refine_steps, **TINY))
-    assert asked[0] is (refine_steps == 0)
+    assert asked == [True]
     assert (res.timings["refine"] > 0) == bool(refine_steps)

@@ -169,9 +169,10 @@ def test_the_pipeline_sweeps_when_asked(views):
     assert len(swept.view_index) == len(swept.gaussians)
 
 
-def test_the_pipeline_scales_one_pass_views_but_not_what_it_refines(views, monkeypatch):
-    """reconstruct_pruned applies the search's factor (here forced to 1.1); depth_scale=False,
-    and so reconstruct_refined, the worker's refining path and curate's, leave it out."""
+def test_the_pipeline_scales_one_pass_views_and_refines_from_them(views, monkeypatch):
+    """reconstruct_pruned applies the search's factor (here forced to 1.1), depth_scale=False
+    leaves it out, and reconstruct_refined starts from the scaled one-pass Gaussians: 0 steps
+    is the one-pass scene."""
     import prosplat.depth_sweep as depth_sweep
 
     cams, images, _ = views
@@ -191,11 +192,13 @@ def test_the_pipeline_scales_one_pass_views_but_not_what_it_refines(views, monke
     torch.testing.assert_close(scaled.depths, plain.depths * 1.1)
     assert len(scaled.gaussians) == len(plain.gaussians)  # the factor comes after the budget
     assert torch.equal(scaled.view_index, plain.view_index)
-    refined = model.reconstruct_refined(images, cams, steps=1)
-    assert calls == [len(cams)] and len(refined.gaussians) == len(plain.gaussians)
+    refined = model.reconstruct_refined(images, cams, steps=0)
+    assert calls == [len(cams)] * 2
+    torch.testing.assert_close(refined.gaussians.means, scaled.gaussians.means)
+    calls.clear()
     model.depth_sweep = DepthSweepOptions(scale_candidates=0)
     model.reconstruct_pruned(images, cams)
-    assert calls == [len(cams)]
+    assert calls == []
 
 
 @pytest.mark.parametrize(

@@ -321,9 +321,9 @@ def test_cancelled_progress_stops_before_any_output(scene, tmp_path: Path) -> No
     assert list(tmp_path.iterdir()) == []
 
 
-def test_reconstruct_refines_from_the_depth_without_the_scene_wide_factor(scene, monkeypatch):
-    """A plain reconstruction asks for the depth sweep's scene-wide factor; a refining one
-    does not (refinement fits the inputs better from the local sweep's depth)."""
+def test_reconstruct_refines_from_the_one_pass_gaussians(scene, monkeypatch):
+    """Plain and refining reconstructions both ask for the depth sweep's scene-wide factor:
+    refinement starts from the one-pass Gaussians, as ProSplat.reconstruct_refined does."""
     from prosplat.pipeline import ProSplat
 
     folder, cams = scene
@@ -339,7 +339,7 @@ def test_reconstruct_refines_from_the_depth_without_the_scene_wide_factor(scene,
     run_task("reconstruct", params)
     run_task("reconstruct", {**params, "refine_steps": 2})
     run_task("reconstruct", {**params, "refine_seconds": 0.2})
-    assert asked == [True, False, False]
+    assert asked == [True, True, True]
 
 
 def test_reconstruct_refines_with_progress_and_esc_mid_refinement(scene, tmp_path: Path) -> None:

@@ -82,7 +82,7 @@ def curate_scene(
         images = scene.images[idx]
         if refine_steps:
             pruned = model.reconstruct_pruned(
-                images, cams, near, far, generator_height=generator_height, depth_scale=False
+                images, cams, near, far, generator_height=generator_height
             )  # as the pipeline refines
             input_depths = pruned.depths_for(images)  # None when the generator ran smaller
             gaussians = refine(

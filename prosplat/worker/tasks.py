@@ -193,7 +193,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     refining = any(b is not None for b in refine_budget)
     pruned = model.reconstruct_pruned(
         images.to(device), cameras, params.get("near"), params.get("far"),
-        budget=params.get("budget") or None, depth_scale=not refining,
+        budget=params.get("budget") or None,
     )  # fmt: skip
     gw, gh = pruned.cameras[0].width, pruned.cameras[0].height
     g, stats, t_gen = pruned.gaussians.to("cpu"), pruned.stats, pruned.generator_s
