@@ -203,7 +203,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     if refining:
         depths = pruned.depths_for(images)
         depths = None if depths is None else depths.cpu()
-        g, t_refine = _refine(params, g, images, cameras, depths, progress)
+        g, t_refine = _refine(refine_budget, g, images, cameras, depths, progress)
     if params.get("ply"):
         from prosplat.ply import write_ply
 
@@ -230,8 +230,8 @@ def generator_info(generator) -> dict[str, str]:
 
 
 def _refine_budget(params: dict) -> tuple[int | None, float | None]:
-    """(steps, seconds) of the task's refinement, (None, None) when off (0 or missing);
-    checked here, before the generator runs, so a bad budget costs nothing."""
+    """(steps, seconds) of the task's refinement, (None, None) when off (0 or missing), not
+    both; checked when the task starts, so a bad budget costs nothing."""
     from prosplat.refine import check_budget
 
     steps, seconds = params.get("refine_steps") or None, params.get("refine_seconds") or None
@@ -240,13 +240,13 @@ def _refine_budget(params: dict) -> tuple[int | None, float | None]:
     return steps, seconds
 
 
-def _refine(params: dict, g: Gaussians, images, cameras, depths, progress: Progress):
-    """Refine the pruned Gaussians against the inputs (``refine_steps`` or ``refine_seconds``,
-    0/None: off; not both), reporting each step between 0.8 and 0.9; a cancel raises
+def _refine(budget: tuple, g: Gaussians, images, cameras, depths, progress: Progress):
+    """Refine the pruned Gaussians against the inputs for ``budget`` (steps, seconds) from
+    :func:`_refine_budget`, reporting each step between 0.8 and 0.9; a cancel raises
     :class:`~prosplat.worker.Cancelled` like every other step. Returns (Gaussians, seconds)."""
     from prosplat.refine import refine
 
-    steps, seconds = _refine_budget(params)
+    steps, seconds = budget
     start = time.perf_counter()
 
     def report(step: int, total, loss: float) -> None:
