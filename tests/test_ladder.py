@@ -129,7 +129,10 @@ def test_registry_skips_rows_that_cannot_run(capsys):
         build_rungs(["flat", "nope"], LadderContext())
     assert list(REGISTRY)[:2] == ["flat", "paste"]  # the table's order: bottom first
     rows = build_rungs(["optimize"], LadderContext({"opt_steps": [3, 7]}))
-    assert [r.name for r in rows] == ["3DGS opt 3", "3DGS opt 7"]
+    assert [r.name for r in rows] == [
+        "3DGS opt 3", "3DGS opt 3 filled", "3DGS opt 7", "3DGS opt 7 filled"
+    ]  # fmt: skip
+    assert [r.shares for r in rows] == ["3DGS opt 3"] * 2 + ["3DGS opt 7"] * 2  # one fit each
     assert SkipRung.__doc__
 
 

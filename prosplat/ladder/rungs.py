@@ -247,19 +247,26 @@ def _dtype(ctx: LadderContext) -> torch.dtype:
 
 @register("optimize")
 def optimize_rungs(ctx: LadderContext) -> list[Rung]:
-    """Per-scene 3DGS optimisation (prosplat.baselines.optimize) at each ``opt_steps``."""
+    """Per-scene 3DGS optimisation (prosplat.baselines.optimize) at each ``opt_steps``: its
+    raw render (``3DGS opt N``) and, from the same fit, the render with its holes filled as
+    the generator's filled rows are (``3DGS opt N filled``), so the two methods are scored
+    alike whichever way the views are shown."""
     steps = ctx.options.get("opt_steps") or []
     if not steps:
         raise SkipRung("per-scene optimisation is slow; pass --opt-steps 300 1000 to run it")
     from prosplat.baselines import optimize_gaussians
 
-    def make(n: int) -> Rung:
+    def make(n: int) -> list[Rung]:
         def reconstruct(inp: SceneInputs):
             return optimize_gaussians(inp.images, inp.cameras, inp.near, inp.far, steps=n)[0]
 
-        return Rung(f"3DGS opt {n}", reconstruct, splat_view, depth=True, warmup=False)
+        key = f"3DGS opt {n}"
+        return [
+            Rung(key, reconstruct, splat_view, key, depth=True, warmup=False),
+            Rung(f"{key} filled", reconstruct, _filled_view(), key, depth=True, warmup=False),
+        ]
 
-    return [make(int(n)) for n in steps]
+    return [rung for n in steps for rung in make(int(n))]
 
 
 def _generator_gaussians(ctx: LadderContext) -> Callable[[SceneInputs], Any]:
