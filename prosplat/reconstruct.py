@@ -368,10 +368,10 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
 
     from prosplat.budget import budget_arg
 
-    kwargs = refine_kwargs(args.refine_steps, args.refine_seconds)
     budget = budget_arg(args.budget)
     t0 = time.perf_counter()
-    steps, seconds = kwargs.get("refine_steps") or None, kwargs.get("refine_seconds") or None
+    # the flags were checked by run_reconstruct before any work (refine_kwargs); 0 is "off"
+    steps, seconds = args.refine_steps or None, args.refine_seconds or None
     if steps is None and seconds is None:
         pruned = model.reconstruct_pruned(images, cameras, near, far, budget=budget)
         g, stats = pruned.gaussians, pruned.stats
