@@ -447,18 +447,26 @@ def test_zero_baseline_cost_volume_is_flat_and_finite():
     assert torch.allclose(cost, same_pixel.expand_as(cost), atol=1e-4)
 
 
-@pytest.mark.parametrize("all_pairs", [True, False])
-def test_cost_volume_matches_a_candidate_by_candidate_reference(all_pairs, monkeypatch):
-    """The vectorised correlation, both ways (all candidates warped at once, multiplied and
-    summed over channels; or every pixel pair correlated first, then sampled), against one
-    grid_sample and one dot product per view, neighbour and candidate: the same volume and
-    the same feature gradients. The third camera faces the others, so some of its
-    candidates lie behind them and some points fall outside."""
+@pytest.mark.parametrize(
+    ("all_pairs", "planes_per_chunk"), [(True, 5), (False, 5), (False, 2)],
+    ids=["all-pairs", "warped", "warped-in-chunks"],
+)  # fmt: skip
+def test_cost_volume_matches_a_candidate_by_candidate_reference(
+    all_pairs, planes_per_chunk, monkeypatch
+):
+    """The vectorised correlation, both ways (candidates warped a chunk of planes at a time,
+    multiplied and summed over channels; or every pixel pair correlated first, then
+    sampled), against one grid_sample and one dot product per view, neighbour and candidate:
+    the same volume and the same feature gradients. Chunks of 2 of the 5 planes leave a
+    short last chunk. The third camera faces the others, so some of its candidates lie
+    behind them and some points fall outside."""
     import torch.nn.functional as F
 
     from prosplat.generator import cost_volume
 
     monkeypatch.setattr(cost_volume, "ALL_PAIRS_MAX_PIXELS", 10**6 if all_pairs else 0)
+    # one plane of the warped features is 3 views x 6 channels x 8x10 pixels
+    monkeypatch.setattr(cost_volume, "PLANE_CHUNK_VALUES", planes_per_chunk * 3 * 6 * 80)
     torch.manual_seed(5)
     cams = [Camera.look_at((0.3 * i, 0.1 * i, 0.0), (0.0, 0.0, 4.0), (0, -1, 0), 12.0, 10, 8)
             for i in range(2)]  # fmt: skip

@@ -78,6 +78,25 @@ def test_the_image_sweep_peaks_at_the_candidate_nearest_the_plane():
     torch.testing.assert_close(pooled, torch.nn.functional.avg_pool3d(vol, (1, 2, 2)))
 
 
+def test_the_image_sweep_in_chunks_of_planes_is_the_whole_sweep(monkeypatch):
+    """Planes warped and correlated a few at a time (PLANE_CHUNK_VALUES, 3 of 16 here, a
+    short last chunk) give the volume of all planes at once, bit for bit: the ZNCC's window
+    never crosses planes."""
+    from prosplat.generator import cost_volume
+
+    w, h, d = 48, 40, 16
+    cands = inverse_depth_candidates(torch.tensor([NEAR]), torch.tensor([FAR]), d)
+    images, K, w2c = _two_views(w, h, float(cands[0, 6]))
+    images = images + 0.05 * torch.rand_like(images)  # texture everywhere, not only the plane
+    nbrs = nearest_views(w2c, 3)
+    whole = image_cost_volume(images, K, w2c, cands, nbrs, 5, pool=2)
+    # one plane of the ZNCC statistics: 2 views x (3 channels + 2) x 40x48 pixels
+    monkeypatch.setattr(cost_volume, "PLANE_CHUNK_VALUES", 3 * 2 * 5 * h * w)
+    chunked = image_cost_volume(images, K, w2c, cands, nbrs, 5, pool=2)
+    assert torch.equal(chunked, whole)
+    assert whole.abs().max() > 0.5  # it matched something
+
+
 def test_flat_images_and_unseen_points_give_zero():
     """A flat image has no texture to match (0, not its noise), and a candidate that lands
     outside every neighbour's image gives 0 (no vote), not the correlation of padding."""

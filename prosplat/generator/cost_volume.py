@@ -157,21 +157,46 @@ def correlate(feats: Tensor, warped: Tensor) -> Tensor:
 ALL_PAIRS_MAX_PIXELS = 1024
 
 
+#: Candidate planes are warped and correlated in chunks whose largest temporary holds at
+#: most this many values (2 MiB of float32; 2 planes of 16 channels at 64x64 for 4 views).
+#: Why: whole, one neighbour's warp at that shape (the 128-px forward's fine volume) is 33.5
+#: MB, past the 32 MiB up to which glibc reuses freed heap memory, so every call got fresh
+#: pages from mmap and paid a page fault per 4 KiB; the image sweep's 10 MB ZNCC
+#: statistics lost time to fresh pages too. Small chunks reuse warm memory and stay in
+#: cache: the bare 128-px
+#: forward runs 1.31x faster with the same Gaussians bit for bit, and its training forward
+#: and backward 1.22x (BENCHMARKS "Sweeps in plane chunks"). Raising glibc's mmap threshold
+#: instead (MALLOC_MMAP_THRESHOLD_) gains about as much, which is how the cause was found.
+PLANE_CHUNK_VALUES = 1 << 19
+
+
+def planes_per_chunk(values_per_plane: int) -> int:
+    """How many candidate planes of ``values_per_plane`` values fit :data:`PLANE_CHUNK_VALUES`
+    (at least one)."""
+    return max(1, PLANE_CHUNK_VALUES // max(1, values_per_plane))
+
+
 def warped_correlation(feats: Tensor, src: Tensor, grid: Tensor) -> Tensor:
     """``<F_i(p), F_j(q)>`` for each reference pixel p and its candidates' points q: the
     neighbour's features ``src [B,V,C,h,w]`` bilinearly sampled at ``grid [B,V,D,h,w,2]``
     (zeros outside), then dotted with ``feats [B,V,C,h,w]`` -> [B,V,D,h,w]. Reads C channels
-    at every one of the D·h·w points."""
+    at every one of the D·h·w points, a chunk of planes at a time (:data:`PLANE_CHUNK_VALUES`)."""
     b, v, c, h, w = feats.shape
     d = grid.shape[2]
-    warped = F.grid_sample(
-        src.reshape(b * v, c, h, w),
-        grid.reshape(b * v, d * h, w, 2),
-        mode="bilinear",
-        padding_mode="zeros",
-        align_corners=False,
-    ).view(b, v, c, d, h, w)  # [B,V,C,D,h,w]
-    return correlate(feats, warped)
+    flat = src.reshape(b * v, c, h, w)
+    per = planes_per_chunk(b * v * c * h * w)
+    chunks = []
+    for d0 in range(0, d, per):
+        dc = min(per, d - d0)
+        warped = F.grid_sample(
+            flat,
+            grid[:, :, d0 : d0 + dc].reshape(b * v, dc * h, w, 2),
+            mode="bilinear",
+            padding_mode="zeros",
+            align_corners=False,
+        ).view(b, v, c, dc, h, w)  # [B,V,C,Dc,h,w]
+        chunks.append(correlate(feats, warped))  # [B,V,Dc,h,w]
+    return chunks[0] if len(chunks) == 1 else torch.cat(chunks, dim=2)  # [B,V,D,h,w]
 
 
 def sampled_correlation(feats: Tensor, src: Tensor, grid: Tensor) -> Tensor:

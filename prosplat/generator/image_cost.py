@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.baselines.plane_sweep import patch_mean_var, window_zncc
-from prosplat.generator.cost_volume import warp_grid
+from prosplat.generator.cost_volume import planes_per_chunk, warp_grid
 
 #: Added to var_ref · var_src (images in [0, 1], variances summed over the channels): two
 #: patches with a standard deviation of 0.1 correlate at most 1/√2, of 0.03 at most 0.09, so
@@ -66,15 +66,18 @@ def image_cost_volume(
     bidx = torch.arange(b, device=images.device)[:, None]  # [B,1]
     total = images.new_zeros(b * v, d, h, w)
     seen = images.new_zeros(b * v, d, h, w)
+    per = planes_per_chunk(b * v * (c + 2) * h * w)  # the ZNCC's statistics per plane
     for n in range(neighbours.shape[-1]):
         nbr = neighbours[..., n]  # [B,V]
         grid = warp_grid(K, w2c, nbr, depths, h, w).to(images.dtype)  # [B,V,D,H,W,2]
         inside = (grid.abs().amax(-1) <= 1).reshape(b * v, d, h, w).to(images.dtype)
         src = images[bidx, nbr].reshape(b * v, c, h, w)  # [BV,C,H,W]
-        warped = F.grid_sample(src, grid.reshape(b * v, d * h, w, 2), align_corners=False)
-        warped = warped.view(b * v, c, d, h, w)  # [BV,C,D,H,W]
-        zncc, _ = window_zncc(warped, ref_d, mu_r_d, var_r_d, window, ZNCC_EPS)  # [BV,D,H,W]
-        total = total + zncc * inside
+        for d0 in range(0, d, per):  # a chunk of planes at a time: see PLANE_CHUNK_VALUES
+            dc = min(per, d - d0)
+            part = grid[:, :, d0 : d0 + dc].reshape(b * v, dc * h, w, 2)
+            warped = F.grid_sample(src, part, align_corners=False).view(b * v, c, dc, h, w)
+            zncc, _ = window_zncc(warped, ref_d, mu_r_d, var_r_d, window, ZNCC_EPS)  # [BV,Dc,H,W]
+            total[:, d0 : d0 + dc].addcmul_(zncc, inside[:, d0 : d0 + dc])
         seen = seen + inside
     mean = total / seen.clamp(min=1)  # [BV,D,H,W]
     return F.avg_pool2d(mean, pool).view(b, v, d, h // pool, w // pool)
