@@ -200,3 +200,19 @@ def test_box_mean_is_the_pooling_it_replaces():
     x = torch.rand(3, 5, 16, 16, generator=g).transpose(0, 1)
     ref = F.avg_pool2d(x, WINDOW, stride=1, padding=WINDOW // 2, count_include_pad=False)
     assert torch.allclose(box_mean(x), ref, atol=2e-6)
+
+
+@pytest.mark.parametrize("best_views", [None, 1])
+def test_zncc_cost_in_chunks_of_planes_is_the_whole_cost(best_views, monkeypatch):
+    """The sweep warps a chunk of candidates at a time (_CHUNK_PIXELS, small for speed):
+    chunks of 2 of 5 planes (a short last one), summed or kept per view for the best-view
+    selection, give the cost of all planes at once, bit for bit."""
+    from prosplat.baselines import plane_sweep
+
+    images, cams, _ = demo_views(3, 24, "noise")
+    depths = torch.linspace(2.5, 6.0, 5)
+    whole = plane_sweep.zncc_cost(images, cams, 0, depths, best_views=best_views)  # [5,24,24]
+    monkeypatch.setattr(plane_sweep, "_CHUNK_PIXELS", 2 * 24 * 24)
+    chunked = plane_sweep.zncc_cost(images, cams, 0, depths, best_views=best_views)
+    assert torch.equal(chunked, whole)
+    assert whole.amin() < 0.5  # some candidate matched
