@@ -163,10 +163,10 @@ ALL_PAIRS_MAX_PIXELS = 1024
 #: MB, past the 32 MiB up to which glibc reuses freed heap memory, so every call got fresh
 #: pages from mmap and paid a page fault per 4 KiB; the image sweep's 10 MB ZNCC
 #: statistics lost time to fresh pages too. Small chunks reuse warm memory and stay in
-#: cache: the bare 128-px
-#: forward runs 1.31x faster with the same Gaussians bit for bit, and its training forward
-#: and backward 1.22x (BENCHMARKS "Sweeps in plane chunks"). Raising glibc's mmap threshold
-#: instead (MALLOC_MMAP_THRESHOLD_) gains about as much, which is how the cause was found.
+#: cache: the bare 128-px forward runs 1.31x faster (on a Xeon and an AMD EPYC) with the
+#: same Gaussians bit for bit, and its training forward and backward 1.22x (BENCHMARKS
+#: "Sweeps in plane chunks"). Raising glibc's mmap threshold instead
+#: (MALLOC_MMAP_THRESHOLD_) gains about as much, which is how the cause was found.
 PLANE_CHUNK_VALUES = 1 << 19
 
 
