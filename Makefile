@@ -7,7 +7,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.prosplat-setup
 
-.PHONY: setup demo test test-all bench addon lint format clean
+.PHONY: setup setup-blender demo test test-addon test-all bench addon lint format clean
 
 setup: $(STAMP)
 
@@ -26,12 +26,41 @@ $(STAMP): pyproject.toml Makefile addon/pins.py
 	$(PY) -m prosplat.metrics.lpips_weights
 	touch $(STAMP)
 
+# The add-on on the Blender artists run today: Blender 5.1 and later bundle Python 3.13 and
+# numpy 2, so a second venv holds bpy $(BPY) (PyPI's Blender-as-a-module) on Python 3.13, with
+# the pinned set. PyPI has no CPU build of torch for 3.13, so its CUDA build comes (about 3 GB,
+# a minute here; it runs on the CPU); its triton is removed, as the CPU build Install
+# Requirements gives artists has none, and importing triton after an EEVEE render crashes.
+# Another Blender: make test-addon BPY=5.2.3.
+BPY      ?= 5.3.0
+PYTHON313 ?= $(firstword $(wildcard $(HOME)/.pyenv/versions/3.13*/bin/python3.13) \
+                         $(shell command -v python3.13 2>/dev/null))
+VENV_BPY := .venv-bpy$(BPY)
+PY_BPY   := $(VENV_BPY)/bin/python
+STAMP_BPY := $(VENV_BPY)/.prosplat-setup
+
+setup-blender: $(STAMP_BPY)
+
+$(STAMP_BPY): $(STAMP)
+	@test -n "$(PYTHON313)" || { echo "no Python 3.13 found: make PYTHON313=/path/to/python3.13"; exit 1; }
+	test -x $(PY_BPY) || $(PYTHON313) -m venv $(VENV_BPY)
+	$(PY_BPY) -m pip install --quiet --upgrade pip
+	$(PY_BPY) -m pip install --quiet torch==$$($(PY) -c "import runpy; print(runpy.run_path('addon/pins.py')['TORCH_VERSION'])")
+	$(PY_BPY) -m pip uninstall --quiet --yes triton
+	$(PY_BPY) -m pip install --quiet -c $(CONSTRAINTS) bpy==$(BPY) -e ".[test]"
+	touch $(STAMP_BPY)
+
 demo: $(STAMP)
 	$(PY) -m prosplat demo
 
-test: $(STAMP)
+test: $(STAMP) $(STAMP_BPY)
 	$(PY) -m ruff check .
 	$(PY) -m pytest
+	$(PY_BPY) -m pytest tests/test_addon_*.py
+
+# The add-on's tests alone, on bpy $(BPY) (Python 3.13)
+test-addon: $(STAMP_BPY)
+	$(PY_BPY) -m pytest tests/test_addon_*.py
 
 test-all: $(STAMP)
 	$(PY) -m pytest -m "slow or not slow"

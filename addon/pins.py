@@ -6,9 +6,9 @@ ran with), the numpy range Blender's own numpy must be in (it is never installed
 estimated download sizes in MB (installed files recompressed; see the script).
 """
 
-TESTED_ON = "Python 3.11.7, linux x86_64"
+TESTED_ON = "Python 3.11 and 3.13, linux x86_64"
 TORCH_VERSION = "2.13.0"
-NUMPY_RANGE = "<2.0,>=1.24"
+NUMPY_RANGE = "<3,>=1.24"
 
 #: (project name, version): everything prosplat needs at run time, numpy aside.
 PINS = (

@@ -14,6 +14,11 @@ colours and Cycles rendered them black, fresh or reloaded (``tests/test_addon_sp
 
 New objects are hidden from final renders (``hide_render``): the cloud is a reference for
 placing cameras, and the artist's F12 render should not contain it unless asked.
+
+On a Blender with native Gaussian splats (5.3+, a feature check) new objects are
+``GAUSSIAN_SPLAT`` point clouds instead (:mod:`.native_splats`); this mesh and its Geometry
+Nodes display are the fallback. Both kinds, and Blender's own splat imports, read back
+through :func:`read_arrays`.
 """
 
 from __future__ import annotations
@@ -42,14 +47,19 @@ def create_object(
     show_in_renders=False,
     native: bool | None = None,
 ):
-    """The Gaussian object for ``arrays``: Blender's native splats where it has them
-    (``native=None``: feature check, :mod:`.native_splats`; falls back to the mesh if that
-    fails), else the mesh with the Geometry Nodes display."""
+    """The Gaussian object for ``arrays``, hidden from final renders unless
+    ``show_in_renders``: Blender's own ``GAUSSIAN_SPLAT`` cloud where it has them
+    (``native=None``: the feature check :func:`.native_splats.supported`; the mesh if building
+    it fails), else the mesh with the Geometry Nodes display."""
     if native_splats.supported() if native is None else native:
         try:
-            return native_splats.create_object(name, arrays, collection, show_in_renders)
-        except (RuntimeError, ValueError, KeyError, TypeError) as e:
+            obj = native_splats.create_object(name, arrays, collection)
+        except (RuntimeError, ValueError, KeyError, TypeError, AttributeError) as e:
             print(f"ProSplat: native Gaussian splats failed ({e}); using the mesh display")
+        else:
+            obj[KIND_PROP] = "gaussians"
+            obj.hide_render = not show_in_renders
+            return obj
     return create_mesh_object(name, arrays, collection, show_in_renders)
 
 
@@ -97,20 +107,24 @@ def create_mesh_object(
 
 
 def is_gaussians(obj) -> bool:
-    """A mesh (or native splat point cloud) holding the Gaussian point attributes."""
-    return (
-        obj is not None and obj.type in ("MESH", "POINTCLOUD") and "opacity" in obj.data.attributes
-    )
+    """A mesh or point cloud holding the Gaussian point attributes, or any of Blender's own
+    ``GAUSSIAN_SPLAT`` clouds (its PLY, SPZ or glTF import)."""
+    if obj is None or obj.type not in ("MESH", "POINTCLOUD"):
+        return False
+    return "opacity" in obj.data.attributes or native_splats.is_native(obj)
 
 
 def read_arrays(obj) -> dict[str, np.ndarray]:
-    """The point attributes of a Gaussian object (positions in object space).
+    """The point attributes of a Gaussian object (positions in object space), in the PLY's
+    encodings (:func:`prosplat.convert.pointcloud.from_attributes` reads them).
 
     Raises:
         ValueError: not a mesh (or point cloud), or one without the Gaussian attributes.
     """
     if obj is None or obj.type not in ("MESH", "POINTCLOUD"):
         raise ValueError(f"{getattr(obj, 'name', obj)!r} is not a mesh; select a Gaussian object")
+    if native_splats.is_native(obj):
+        return native_splats.read_arrays(obj)
     mesh = obj.data
     n = len(mesh.vertices) if obj.type == "MESH" else len(mesh.points)
     pos = np.empty(n * 3, dtype=np.float32)
@@ -122,6 +136,8 @@ def read_arrays(obj) -> dict[str, np.ndarray]:
     for attr in mesh.attributes:
         if attr.domain != "POINT" or attr.data_type != "FLOAT" or attr.name.startswith("."):
             continue
+        if obj.type == "POINTCLOUD" and attr.name == "radius":  # Blender's own, not a Gaussian's
+            continue
         values = np.empty(n, dtype=np.float32)
         attr.data.foreach_get("value", values)
         out[attr.name] = values
@@ -131,6 +147,10 @@ def read_arrays(obj) -> dict[str, np.ndarray]:
             "point attributes); import a 3DGS PLY or reconstruct one"
         )
     return out
+
+
+def point_count(obj) -> int:
+    return len(obj.data.vertices) if obj.type == "MESH" else len(obj.data.points)
 
 
 def world_matrix(obj) -> list[list[float]]:

@@ -3,10 +3,12 @@ install buttons that get a GUI user unstuck when Blender's Python has no torch."
 
 from __future__ import annotations
 
+import platform
+
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from . import depthsplat_file, install, runtime, worker_process
+from . import depthsplat_file, install, native_splats, runtime, worker_process
 
 DEVICES = [
     ("AUTO", "Auto", "CUDA if available, then Apple MPS, then the CPU"),
@@ -70,6 +72,7 @@ class PROSPLAT_OT_install_requirements(bpy.types.Operator):
         col.label(text=install.describe_download(self._build(context)), icon="INFO")
         col.label(text=f"into {runtime.deps_dir()}")
         col.label(text=f"tested on {install.pins.TESTED_ON}; Blender's numpy is kept")
+        col.label(text=f"this Blender: {detected()}")
         problem = install.numpy_problem()
         if problem:
             col.label(text=problem, icon="ERROR")
@@ -253,7 +256,23 @@ def draw_depthsplat_note(layout, prefs) -> None:
         box.label(text=line, icon=icon)
 
 
+def detected() -> str:
+    """The Blender and Python this add-on runs in, and how it shows Gaussians there (a
+    feature check: Blender's own splats from 5.3, else the mesh display)."""
+    try:
+        import numpy
+
+        numpy_version = numpy.__version__
+    except ImportError:  # pragma: no cover - every Blender bundles numpy
+        numpy_version = "missing"
+    shown = ("Blender's own Gaussian splats" if native_splats.supported()
+             else "mesh + Geometry Nodes splats")  # fmt: skip
+    return (f"Blender {bpy.app.version_string}, Python {platform.python_version()}, "
+            f"numpy {numpy_version}; Gaussians shown as {shown}")  # fmt: skip
+
+
 def draw_requirements(layout, prefs) -> None:
+    layout.label(text=f"Detected: {detected()}", icon="BLENDER")
     versions = _STATUS.get("versions") or runtime.requirement_versions()
     grid = layout.grid_flow(columns=2, even_columns=True)
     for name, version in versions.items():

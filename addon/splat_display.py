@@ -314,9 +314,28 @@ def socket_identifier(group, name: str) -> str:
     )  # fmt: skip
 
 
+def _input_values(mod):
+    """Where this Blender keeps a Geometry Nodes modifier's input values: from 5.2 on, the
+    ``mod.properties.inputs`` struct (``mod["Socket_1"]`` raises there); before, ID properties
+    on the modifier. A feature check, not a version number."""
+    return getattr(getattr(mod, "properties", None), "inputs", None)
+
+
+def get_input(mod, name: str):
+    """The value of a display input (``SOCKETS``) on the modifier."""
+    key = socket_identifier(mod.node_group, name)
+    values = _input_values(mod)
+    return getattr(values, key).value if values is not None else mod[key]
+
+
 def set_input(mod, name: str, value) -> None:
     """Set a display input (``SOCKETS``) on the modifier and re-evaluate."""
-    mod[socket_identifier(mod.node_group, name)] = value
+    key = socket_identifier(mod.node_group, name)
+    values = _input_values(mod)
+    if values is not None:
+        getattr(values, key).value = value
+    else:
+        mod[key] = value
     mod.id_data.update_tag()
 
 
@@ -327,18 +346,25 @@ def add_modifier(obj, arrays: Mapping[str, np.ndarray] | None = None):
     if arrays is not None and "scale_0" in arrays:
         logs = np.stack([np.asarray(arrays[f"scale_{i}"]) for i in range(3)], axis=1)
         size = default_max_size(arrays["position"], logs, DEFAULT_SIGMA)
-        mod[socket_identifier(mod.node_group, MAX_SIZE_SOCKET)] = float(size)
+        set_input(mod, MAX_SIZE_SOCKET, float(size))
     return mod
 
 
 # ---- the panel ------------------------------------------------------------------------------------
 def draw_settings(layout, obj) -> None:
-    """The Gaussians panel's display rows: the modifier inputs, the render toggle, the count."""
+    """The Gaussians panel's display rows: the modifier inputs (mesh display only; Blender
+    draws its own splats without settings), the render toggle, the count."""
     mod = obj.modifiers.get(MODIFIER)
     if mod is not None and mod.node_group is not None:
+        values = _input_values(mod)
         for item in mod.node_group.interface.items_tree:
             if getattr(item, "in_out", "") == "INPUT" and item.name in SOCKETS:
-                layout.prop(mod, f'["{item.identifier}"]', text=item.name)
+                if values is not None:
+                    layout.prop(getattr(values, item.identifier), "value", text=item.name)
+                else:
+                    layout.prop(mod, f'["{item.identifier}"]', text=item.name)
     layout.prop(obj, "hide_render", text="Show in Renders", invert_checkbox=True)
     count = len(obj.data.vertices) if obj.type == "MESH" else len(obj.data.points)
     layout.label(text=f"{count:,} Gaussians", icon="INFO")
+    if getattr(obj.data, "type", "") == "GAUSSIAN_SPLAT":
+        layout.label(text="Drawn as Blender's own Gaussian splats")

@@ -30,6 +30,13 @@ from packaging.specifiers import SpecifierSet
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "addon" / "pins.py"
 BLENDER_PROVIDES = {"numpy"}  # Blender's Python has these; never installed beside them
+#: The Pythons ``make test`` installs this set into and tests (Blender 4.2-5.0 bundle 3.11,
+#: 5.1 and later 3.13): each pin must have a wheel for both.
+TESTED_PYTHONS = ("3.11", "3.13")
+NUMPY_BELOW = "3"  # numpy 3 is untested: no release yet
+#: What only PyPI's CUDA build of torch pulls in (the 3.13 test venv has it: PyPI has no CPU
+#: build for 3.13); Install Requirements takes the CPU build, or lets the CUDA one resolve these.
+CUDA_ONLY = re.compile(r"^(nvidia-|cuda-|triton$)")
 
 
 def canonical(name: str) -> str:
@@ -62,7 +69,7 @@ def closure() -> tuple[dict[str, tuple[str, str]], list[tuple[str, str, str]]]:
             if "extra" not in str(req.marker) and key not in pinned:
                 elsewhere[key] = (req.name, str(req.specifier), str(req.marker))
             continue
-        if key in pinned:
+        if key in pinned or CUDA_ONLY.match(key):
             continue
         dist = md.distribution(req.name)
         pinned[key] = (dist.metadata["Name"], dist.version)
@@ -71,13 +78,11 @@ def closure() -> tuple[dict[str, tuple[str, str]], list[tuple[str, str, str]]]:
 
 
 def numpy_range() -> str:
-    """Blender's numpy must satisfy this: prosplat's lower bound, bpy's upper bound (the
-    bpy module is the tested stand-in for Blender's bundled Python)."""
+    """Blender's numpy must satisfy this: prosplat's lower bound, and below the next major
+    release after the newest tested (numpy 1.26 with bpy 5.0 on Python 3.11, numpy 2.x with
+    bpy 5.3 on Python 3.13: ``make test`` runs the add-on tests on both)."""
     ours = next(r for r in top_level() if canonical(r.name) == "numpy").specifier
-    bpy_req = [Requirement(r) for r in md.requires("bpy") or []]
-    theirs = next((r.specifier for r in bpy_req if canonical(r.name) == "numpy"), SpecifierSet())
-    upper = [s for s in theirs if s.operator in ("<", "<=")]
-    return str(SpecifierSet(",".join([*map(str, ours), *map(str, upper)])))
+    return str(SpecifierSet(",".join([*map(str, ours), f"<{NUMPY_BELOW}"])))
 
 
 def wheel_mb(name: str) -> float:
@@ -99,6 +104,7 @@ def q(text: str) -> str:
 def render(sizes: dict[str, float]) -> str:
     pinned, elsewhere = closure()
     torch_version = pinned["torch"][1].split("+")[0]
+    tested = " and ".join(TESTED_PYTHONS)
     rows = [(n, v.split("+")[0]) for k, (n, v) in sorted(pinned.items())
             if k not in BLENDER_PROVIDES]  # fmt: skip
     lines = [
@@ -110,7 +116,7 @@ def render(sizes: dict[str, float]) -> str:
         "estimated download sizes in MB (installed files recompressed; see the script).",
         '"""',
         "",
-        f"TESTED_ON = {q(f'Python {platform.python_version()}, {sys.platform} {platform.machine()}')}",
+        f"TESTED_ON = {q(f'Python {tested}, {sys.platform} {platform.machine()}')}",
         f"TORCH_VERSION = {q(torch_version)}",
         f"NUMPY_RANGE = {q(numpy_range())}",
         "",

@@ -17,7 +17,7 @@ bpy = pytest.importorskip("bpy")
 from addon_support import data_counts, reset_scene, run_op  # noqa: E402
 from synthetic_scenes import write_synthetic_scene  # noqa: E402
 
-from addon import depthsplat_file, preferences, runtime, steps  # noqa: E402
+from addon import depthsplat_file, pointcloud, preferences, runtime, steps  # noqa: E402
 from prosplat.generator.depthsplat import random_encoder, save_released_format  # noqa: E402
 from prosplat.generator.depthsplat.config import SMALL  # noqa: E402
 from prosplat.image_io import read_image  # noqa: E402
@@ -64,7 +64,7 @@ def test_reconstruct_with_a_depthsplat_file_gives_gaussians_that_render(
     assert res == {"FINISHED"}, err
     assert "with DepthSplat small" in reports[0] and "non-commercial" not in reports[0]
     g = scene.prosplat.gaussians
-    assert g is not None and 0 < len(g.data.vertices) <= 2 * SIZE * SIZE
+    assert g is not None and 0 < pointcloud.point_count(g) <= 2 * SIZE * SIZE
     assert list(g[steps.MADE_SIZE_PROP]) == [SIZE, SIZE]
 
     scene.prosplat.output_dir = str(tmp_path / "renders")

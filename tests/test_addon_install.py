@@ -49,6 +49,9 @@ def test_pins_cover_the_requirements_and_leave_numpy_to_blender() -> None:
 
     assert install.version_in_range(numpy.__version__, pins.NUMPY_RANGE)  # the tested one
     assert install.numpy_problem() is None
+    # both numpys Blender bundles (4.2-5.0: 1.2x; 5.1+: 2.x) are in range, an untested 3 is not
+    for version, ok in (("1.26.4", True), ("2.5.5", True), ("1.23.5", False), ("3.0.0", False)):
+        assert install.version_in_range(version, pins.NUMPY_RANGE) == ok, version
 
 
 def test_cpu_command_takes_the_tested_cpu_torch_without_resolving() -> None:

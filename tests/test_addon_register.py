@@ -204,6 +204,11 @@ def test_panels_and_menus_draw(blank, tmp_path: Path) -> None:
     } <= ops
     assert ("progress", "reconstruct: x") in log
     assert ("label", "10 Gaussians") in log
+    import platform
+
+    detected = [t for kind, t in log if kind == "label" and t and t.startswith("Detected: ")]
+    assert detected == [f"Detected: {preferences.detected()}"]
+    assert f"Blender {bpy.app.version_string}, Python {platform.python_version()}" in detected[0]
 
 
 def test_pip_install_reports_progress_and_result() -> None:

@@ -52,8 +52,25 @@ RED_GREEN = _splats([[-0.8, 0.0, 0.0], [0.8, 0.0, 0.0]], [[1.0, 0.0, 0.0], [0.0,
 
 
 def _generated(g: Gaussians, name: str = "Generated"):
-    """The object a reconstruction makes (the worker's arrays -> steps.apply_gaussians)."""
+    """The object a reconstruction makes (the worker's arrays -> steps.apply_gaussians):
+    Blender's own splats where this Blender has them, else the mesh display."""
     return steps.apply_gaussians({"arrays": to_attributes(g)}, name, bpy.context.scene.collection)
+
+
+def _mesh(g: Gaussians, name: str = "Mesh"):
+    """The mesh + Geometry Nodes display (the only one before 5.3, the fallback after)."""
+    return pointcloud.create_object(name, to_attributes(g), bpy.context.scene.collection,
+                                    native=False)  # fmt: skip
+
+
+#: The displays this Blender has: the mesh everywhere, Blender's own splats on 5.3+.
+DISPLAYS = ["mesh", "native"] if native_splats.supported() else ["mesh"]
+
+
+def _made(g: Gaussians, display: str):
+    obj = _mesh(g) if display == "mesh" else _generated(g)
+    assert (obj.type == "MESH") == (display == "mesh")
+    return obj
 
 
 def _imported(g: Gaussians, tmp_path: Path):
@@ -130,7 +147,7 @@ def test_instances_follow_quaternion_and_scale(blank) -> None:
     scales = torch.tensor([0.30, 0.08, 0.02]).repeat(n, 1) * torch.rand(n, 1, generator=gen)
     means = torch.arange(n, dtype=torch.float32)[:, None] * torch.tensor([1.0, 0.5, -0.25])
     g = _splats(means, torch.rand(n, 3, generator=gen), scales, quats)
-    obj = _generated(g)
+    obj = _mesh(g)
     _input(obj, splat_display.MAX_SIZE_SOCKET, 10.0)
     _input(obj, splat_display.SIGMA_SOCKET, 2.5)
     mats = evaluated_instances(obj)
@@ -149,9 +166,9 @@ def test_max_size_clamps_far_splats(blank) -> None:
     means = torch.rand(400, 3, generator=gen) * 4
     scales = (0.005 + 0.005 * torch.rand(400, 1, generator=gen)).repeat(1, 3)
     scales[0] = torch.tensor([7.0, 7.0, 0.001])  # the far ground splat (a flat disc)
-    obj = _generated(_splats(means, torch.rand(400, 3, generator=gen), scales))
+    obj = _mesh(_splats(means, torch.rand(400, 3, generator=gen), scales))
     mod = obj.modifiers[splat_display.MODIFIER]
-    max_size = mod[splat_display.socket_identifier(mod.node_group, "Max Size")]
+    max_size = splat_display.get_input(mod, "Max Size")
     want = float(np.percentile(2 * scales.max(dim=1).values.double().numpy(), 99))
     assert max_size == pytest.approx(want, rel=1e-6)  # p99 of 2 sigma (under 2% of the extent)
     mats = evaluated_instances(obj)
@@ -167,7 +184,7 @@ def test_max_size_clamps_far_splats(blank) -> None:
 
 def test_viewport_budget_bounds_the_count(blank) -> None:
     g = _splats(torch.randn(5000, 3), torch.rand(5000, 3))
-    obj = _generated(g)
+    obj = _mesh(g)
     _input(obj, splat_display.VIEWPORT_SOCKET, 300)
     assert len(evaluated_instances(obj)) == 300
     _input(obj, splat_display.VIEWPORT_SOCKET, 0)  # 0: all
@@ -177,9 +194,15 @@ def test_viewport_budget_bounds_the_count(blank) -> None:
 
 
 # ---- renders ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("display", DISPLAYS)
 @pytest.mark.parametrize("source", ["ply", "generated"])
-def test_cycles_shows_splat_colours_also_after_reload(blank, tmp_path: Path, source) -> None:
-    obj = _imported(RED_GREEN, tmp_path) if source == "ply" else _generated(RED_GREEN)
+def test_cycles_shows_splat_colours_also_after_reload(blank, tmp_path: Path, source, display):
+    if source == "ply":
+        obj = _imported(RED_GREEN, tmp_path)  # the default display: native on 5.3+
+        if display == "mesh":
+            pytest.skip("Import Gaussian PLY makes the default display; the mesh is 'generated'")
+    else:
+        obj = _made(RED_GREEN, display)
     obj.hide_render = False
     _camera(blank)
     _assert_red_and_green(_render("CYCLES", tmp_path, f"cycles-{source}"))
@@ -187,9 +210,10 @@ def test_cycles_shows_splat_colours_also_after_reload(blank, tmp_path: Path, sou
     _assert_red_and_green(_render("CYCLES", tmp_path, f"cycles-{source}-reloaded"))
 
 
-def test_eevee_shows_splat_colours_also_after_reload(blank, tmp_path: Path) -> None:
+@pytest.mark.parametrize("display", DISPLAYS)
+def test_eevee_shows_splat_colours_also_after_reload(blank, tmp_path: Path, display) -> None:
     """EEVEE renders headless here (software OpenGL through EGL), so it is rendered for real."""
-    obj = _imported(RED_GREEN, tmp_path)
+    obj = _imported(RED_GREEN, tmp_path) if display != "mesh" else _mesh(RED_GREEN)
     obj.hide_render = False
     _camera(blank)
     _assert_red_and_green(_render("BLENDER_EEVEE", tmp_path, "eevee"))
@@ -197,10 +221,11 @@ def test_eevee_shows_splat_colours_also_after_reload(blank, tmp_path: Path) -> N
     _assert_red_and_green(_render("BLENDER_EEVEE", tmp_path, "eevee-reloaded"))
 
 
-def test_opacity_and_falloff_shape_the_splat(blank, tmp_path: Path) -> None:
+@pytest.mark.parametrize("display", DISPLAYS)
+def test_opacity_and_falloff_shape_the_splat(blank, tmp_path: Path, display) -> None:
     """A faint splat renders fainter, and every splat fades from its centre outwards."""
     g = _splats([[-0.8, 0, 0], [0.8, 0, 0]], [[1.0, 0, 0], [1.0, 0, 0]], opacity=[0.95, 0.3])
-    _generated(g).hide_render = False
+    _made(g, display).hide_render = False
     _camera(blank)
     px = _render("CYCLES", tmp_path, "cycles-opacity")
     a, b = _column_colour(px, -0.8)[0], _column_colour(px, 0.8)[0]
@@ -210,8 +235,9 @@ def test_opacity_and_falloff_shape_the_splat(blank, tmp_path: Path) -> None:
     assert row[centre] > row[centre - 2] > row[centre - 4]  # a falloff, not a solid disc
 
 
-def test_cloud_is_not_in_f12_renders_unless_asked(blank, tmp_path: Path) -> None:
-    obj = _imported(RED_GREEN, tmp_path)
+@pytest.mark.parametrize("display", DISPLAYS)
+def test_cloud_is_not_in_f12_renders_unless_asked(blank, tmp_path: Path, display) -> None:
+    obj = _imported(RED_GREEN, tmp_path) if display != "mesh" else _mesh(RED_GREEN)
     assert obj.hide_render, "new Gaussian objects are hidden from final renders"
     _camera(blank)
     assert _render("CYCLES", tmp_path, "hidden")[..., :3].max() < 1e-3
@@ -220,7 +246,7 @@ def test_cloud_is_not_in_f12_renders_unless_asked(blank, tmp_path: Path) -> None
 
 
 def test_viewport_budget_leaves_renders_whole(blank, tmp_path: Path) -> None:
-    obj = _generated(RED_GREEN)
+    obj = _mesh(RED_GREEN)
     obj.hide_render = False
     _input(obj, splat_display.VIEWPORT_SOCKET, 1)
     assert len(evaluated_instances(obj)) == 1
@@ -316,49 +342,71 @@ def test_default_max_size_ignores_outliers() -> None:
     assert splat_math.default_max_size(np.zeros((1, 3)), np.full((1, 3), -1.0)) > 0
 
 
-@pytest.mark.parametrize("degree", [0, 2])
+@pytest.mark.parametrize("degree", [0, 2, 3])
 def test_native_attributes_match_the_gaussians(tmp_path: Path, degree: int) -> None:
+    """Our PLY attributes -> Blender 5.3's GAUSSIAN_SPLAT layout (checked against Blender's
+    own importer in test_addon_native_splats.py) and back, exactly."""
     from test_worker import random_gaussians
 
     write_ply(random_gaussians(50, degree, seed=degree), tmp_path / "g.ply")
     g = read_ply(tmp_path / "g.ply", dtype=torch.float64)
-    out = splat_math.native_attributes(to_attributes(g))
+    arrays = to_attributes(g)
+    out = splat_math.native_attributes(arrays)
     assert splat_math.SH_C0 == SH_C0
     q = g.quats / g.quats.norm(dim=1, keepdim=True)
     np.testing.assert_allclose(out["rotation"], q.numpy(), rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(out["scale"], g.scales.numpy(), rtol=1e-6)
-    np.testing.assert_allclose(out["opacity"], g.opacities.numpy(), rtol=1e-6, atol=1e-7)
-    np.testing.assert_allclose(out["radiance:0"], (g.sh[:, 0] * SH_C0 + 0.5).numpy(), atol=1e-6)
+    base = out[splat_math.NATIVE_BASE]  # [N, 4]: the raw DC coefficients and linear opacity
+    np.testing.assert_allclose(base[:, 3], g.opacities.numpy(), rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(base[:, :3], g.sh[:, 0].float().numpy())
     k = (degree + 1) ** 2
-    assert sorted(out) == sorted(
-        ["position", "rotation", "scale", "opacity", *(f"radiance:{j}" for j in range(k))]
-    )
+    sh_names = [splat_math.native_sh_name(j) for j in range(k - 1)]
+    assert sorted(out) == sorted(["position", "rotation", "scale", "radiance:base", *sh_names])
     for j in range(1, k):
-        np.testing.assert_allclose(out[f"radiance:{j}"], g.sh[:, j].numpy(), atol=1e-6)
+        np.testing.assert_array_equal(out[f"radiance:sh_{j - 1}"], g.sh[:, j].float().numpy())
     zero = splat_math.native_attributes(
-        {**to_attributes(g), **{f"rot_{i}": np.zeros(50, np.float32) for i in range(4)}}
+        {**arrays, **{f"rot_{i}": np.zeros(50, np.float32) for i in range(4)}}
     )
     np.testing.assert_array_equal(zero["rotation"], np.tile([1, 0, 0, 0], (50, 1)))
 
-
-def test_native_object_builds_and_reads_back(blank) -> None:
-    """The 5.3 path builds on this Blender (a point cloud with the native attributes) and
-    export/render read it as the mesh; whether 5.3 renders it as splats is not tested here."""
-    g = _splats(torch.randn(20, 3), torch.rand(20, 3))
-    arrays = to_attributes(g)
-    obj = native_splats.create_object("Native", arrays, blank.collection)
-    assert obj.type == "POINTCLOUD" and obj.hide_render and pointcloud.is_gaussians(obj)
-    names = {a.name for a in obj.data.attributes}
-    assert {"rotation", "scale", "radiance:0", native_splats.OPACITY_ATTR} <= names
-    back = pointcloud.read_arrays(obj)
-    for key in ("position", "opacity", "rot_0", "scale_2", "f_dc_1"):
-        np.testing.assert_array_equal(back[key], arrays[key])
-    assert native_splats.supported() == (bpy.app.version >= (5, 3, 0))
+    exact = {name: arrays[name] for name in splat_math.EXACT_NAMES}
+    back = splat_math.ply_attributes(out, exact)  # a cloud made here: bit for bit
+    assert sorted(back) == sorted(k for k in arrays if k != "color")
+    for name, values in back.items():
+        np.testing.assert_array_equal(values, arrays[name], err_msg=name)
+    decoded = splat_math.ply_attributes(out)  # Blender's own import: decoded, not exact
+    np.testing.assert_allclose(decoded["opacity"], arrays["opacity"], rtol=1e-4, atol=1e-4)
+    for i in range(3):
+        np.testing.assert_allclose(decoded[f"scale_{i}"], arrays[f"scale_{i}"], atol=1e-6)
+    np.testing.assert_allclose(np.stack([decoded[f"rot_{i}"] for i in range(4)], 1), q.numpy(),
+                               atol=1e-6)  # fmt: skip
 
 
-def test_panel_rows_resolve(blank) -> None:
-    """The Gaussians panel shows Sigma, Max Size, Viewport Points and Show in Renders."""
-    obj = _generated(RED_GREEN)
+def test_native_values_an_artist_edited_win_over_the_kept_ones() -> None:
+    """Where a point's native value no longer agrees with the PLY value kept beside it (an
+    edit in Blender), export takes the native one for that point only."""
+    arrays = {"position": np.zeros((3, 3), np.float32), "opacity": np.zeros(3, np.float32),
+              **{f"scale_{i}": np.full(3, -2.0, np.float32) for i in range(3)},
+              **{f"rot_{i}": np.full(3, 2.0, np.float32) for i in range(4)},
+              **{f"f_dc_{i}": np.ones(3, np.float32) for i in range(3)}}  # fmt: skip
+    native = splat_math.native_attributes(arrays)
+    native["scale"][1] = [1.0, 2.0, 3.0]
+    native["radiance:base"][2, 3] = 0.9
+    exact = {k: arrays[k] for k in splat_math.EXACT_NAMES}
+    back = splat_math.ply_attributes(native, exact)
+    np.testing.assert_array_equal(back["scale_0"][[0, 2]], [-2.0, -2.0])
+    np.testing.assert_allclose([back[f"scale_{i}"][1] for i in range(3)], np.log([1, 2, 3]),
+                               atol=1e-6)  # fmt: skip
+    np.testing.assert_array_equal(back["opacity"][:2], [0.0, 0.0])
+    assert back["opacity"][2] == pytest.approx(np.log(9.0), rel=1e-5)
+    np.testing.assert_array_equal(back["rot_0"], [2.0, 2.0, 2.0])  # unit quaternion unchanged
+
+
+@pytest.mark.parametrize("display", DISPLAYS)
+def test_panel_rows_resolve(blank, display) -> None:
+    """The Gaussians panel shows Sigma, Max Size, Viewport Points (the mesh display's inputs,
+    through this Blender's modifier API) and Show in Renders."""
+    obj = _made(RED_GREEN, display)
     rows: list[tuple[str, object]] = []
 
     class Layout:
@@ -370,5 +418,11 @@ def test_panel_rows_resolve(blank) -> None:
 
     splat_display.draw_settings(Layout(), obj)
     texts = [t for t, _ in rows]
-    assert texts == [*splat_display.SOCKETS, "Show in Renders", "2 Gaussians"]
+    if display == "mesh":
+        assert texts == [*splat_display.SOCKETS, "Show in Renders", "2 Gaussians"]
+        assert dict(rows)[splat_display.MAX_SIZE_SOCKET] == pytest.approx(
+            splat_display.get_input(obj.modifiers[splat_display.MODIFIER], "Max Size")
+        )
+    else:
+        assert texts == ["Show in Renders", "2 Gaussians", "Drawn as Blender's own Gaussian splats"]
     assert dict(rows)["Show in Renders"] is True  # hide_render (the checkbox is inverted)
