@@ -46,8 +46,8 @@ $(STAMP_BPY): $(STAMP)
 	test -x $(PY_BPY) || $(PYTHON313) -m venv $(VENV_BPY)
 	$(PY_BPY) -m pip install --quiet --upgrade pip
 	$(PY_BPY) -m pip install --quiet torch==$$($(PY) -c "import runpy; print(runpy.run_path('addon/pins.py')['TORCH_VERSION'])")
-	$(PY_BPY) -m pip uninstall --quiet --yes triton
 	$(PY_BPY) -m pip install --quiet -c $(CONSTRAINTS) bpy==$(BPY) -e ".[test]"
+	$(PY_BPY) -m pip uninstall --quiet --yes triton
 	touch $(STAMP_BPY)
 
 demo: $(STAMP)

@@ -41,7 +41,8 @@ def run_op(op, **kwargs) -> tuple[set, str | None]:
 
 def data_counts() -> dict[str, int]:
     """How many of each kind of data-block exist (to prove nothing half-made was left)."""
-    kinds = ("objects", "meshes", "cameras", "collections", "images", "node_groups", "materials")
+    kinds = ("objects", "meshes", "pointclouds", "cameras", "collections", "images", "node_groups",
+             "materials")  # fmt: skip
     return {k: len(getattr(bpy.data, k)) for k in kinds}
 
 

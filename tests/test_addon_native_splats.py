@@ -18,7 +18,7 @@ import torch
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import reset_scene, run_op  # noqa: E402
+from addon_support import data_counts, reset_scene, run_op  # noqa: E402
 from test_addon_splat_display import (  # noqa: E402
     RED_GREEN,
     SIZE,
@@ -161,3 +161,17 @@ def test_blenders_own_import_goes_through_render_view_and_export(blank, tmp_path
     torch.testing.assert_close(got.opacities, want.opacities, rtol=1e-6, atol=1e-7)
     torch.testing.assert_close(got.scales, want.scales, rtol=1e-6, atol=0)
     torch.testing.assert_close(got.quats, want.quats / want.quats.norm(dim=1, keepdim=True))
+
+
+def test_a_failed_native_build_leaves_nothing(blank) -> None:
+    """All or nothing: a cloud that cannot be built is removed before the error goes on, and
+    the add-on then tries the mesh display, which refuses the same input as clearly."""
+    arrays = to_attributes(RED_GREEN)
+    arrays["prosplat_view"] = np.zeros(3, np.float32)  # 3 values for 2 points
+    before = data_counts()
+    with pytest.raises(ValueError, match="'prosplat_view' has 3 values for 2 points"):
+        native_splats.create_object("Broken", arrays, blank.collection)
+    assert data_counts() == before
+    with pytest.raises(ValueError, match="'prosplat_view' has 3 values for 2 points"):
+        pointcloud.create_object("Broken", arrays, blank.collection)
+    assert data_counts() == before
