@@ -126,7 +126,7 @@ def read_arrays(obj) -> dict[str, np.ndarray]:
     if native_splats.is_native(obj):
         return native_splats.read_arrays(obj)
     mesh = obj.data
-    n = len(mesh.vertices) if obj.type == "MESH" else len(mesh.points)
+    n = point_count(obj)
     pos = np.empty(n * 3, dtype=np.float32)
     if obj.type == "MESH":
         mesh.vertices.foreach_get("co", pos)
