@@ -56,11 +56,11 @@ demo: $(STAMP)
 test: $(STAMP) $(STAMP_BPY)
 	$(PY) -m ruff check .
 	$(PY) -m pytest
-	$(PY_BPY) -m pytest tests/test_addon_*.py
+	$(PY_BPY) -m pytest tests/addon
 
 # The add-on's tests alone, on bpy $(BPY) (Python 3.13)
 test-addon: $(STAMP_BPY)
-	$(PY_BPY) -m pytest tests/test_addon_*.py
+	$(PY_BPY) -m pytest tests/addon
 
 test-all: $(STAMP)
 	$(PY) -m pytest -m "slow or not slow"

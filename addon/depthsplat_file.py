@@ -17,7 +17,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-#: Suffixes the worker sends to DepthSplat's loader (``prosplat.pipeline.DEPTHSPLAT_SUFFIXES``,
+#: Suffixes the worker sends to DepthSplat's loader (``prosplat.pipeline.model.DEPTHSPLAT_SUFFIXES``,
 #: repeated so the add-on does not import prosplat, and torch, to draw its preferences).
 SUFFIXES = (".pth", ".pt", ".ckpt")
 

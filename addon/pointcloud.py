@@ -10,7 +10,7 @@ ellipsoids, opacity, viewport point budget) is :mod:`.splat_display`.
 The colour attribute is not called ``color``: Cycles maps the attribute name ``color`` to its
 built-in volume-colour attribute (``ATTR_STD_VOLUME_COLOR``, as ``density``, ``flame``,
 ``temperature``...), so an Attribute node asking for ``color`` never found the splats'
-colours and Cycles rendered them black, fresh or reloaded (``tests/test_addon_splat_display.py``).
+colours and Cycles rendered them black, fresh or reloaded (``tests/addon/test_addon_splat_display.py``).
 
 New objects are hidden from final renders (``hide_render``): the cloud is a reference for
 placing cameras, and the artist's F12 render should not contain it unless asked.

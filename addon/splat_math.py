@@ -11,7 +11,7 @@ clamp from the cloud itself so that only those outliers are limited.
 :func:`native_attributes` converts our point attributes (the 3DGS PLY encodings, see
 ``prosplat.convert.pointcloud``) to the attributes of the ``GAUSSIAN_SPLAT`` point cloud that
 Blender 5.3 renders natively, in the layout its own PLY importer writes (checked against
-bpy 5.3 in ``tests/test_addon_native_splats.py``); :func:`ply_attributes` is the way back.
+bpy 5.3 in ``tests/addon/test_addon_native_splats.py``); :func:`ply_attributes` is the way back.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-#: The degree-0 SH basis constant, 1 / (2 sqrt(pi)) (``prosplat.gaussians.SH_C0``).
+#: The degree-0 SH basis constant, 1 / (2 sqrt(pi)) (``prosplat.core.gaussians.SH_C0``).
 SH_C0 = 0.28209479177387814
 #: Blender 5.3's ``GAUSSIAN_SPLAT`` attributes: the DC colour and linear opacity (FLOAT4) ...
 NATIVE_BASE = "radiance:base"

@@ -18,7 +18,7 @@ TARGETS_PROP = "prosplat_targets"  # on an input collection: its collection of t
 SPLIT_PROP, KIND_PROP = "prosplat_split", "prosplat_target_kind"  # on imported cameras
 VIEWS_PROP = "prosplat_views"  # on a Gaussian object: the input views it was made from
 #: the point attribute with each Gaussian's input view (an index into VIEWS_PROP's names;
-#: prosplat.ply.VIEW_PROPERTY), by which rendered views favour the input nearest them
+#: prosplat.core.ply.VIEW_PROPERTY), by which rendered views favour the input nearest them
 VIEW_ATTR = "prosplat_view"
 MADE_SIZE_PROP = "prosplat_made_size"  # on a Gaussian object: [w, h] the generator ran at
 #: rendering this much above the size the Gaussians were made at shows gaps between splats

@@ -30,7 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-from prosplat.bench.machine import cpu_name
+from prosplat.eval.bench.machine import cpu_name
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES = {

@@ -21,10 +21,10 @@ from pathlib import Path
 
 import torch
 
-from prosplat.budget import prune_gaussians
 from prosplat.data import find_scenes, load_scene
+from prosplat.geometry.budget import prune_gaussians
 from prosplat.metrics import psnr
-from prosplat.pipeline import ProSplat
+from prosplat.pipeline.model import ProSplat
 from prosplat.render import render
 
 #: (label, prune_gaussians keyword arguments; None = unpruned)

@@ -31,7 +31,7 @@ import json
 from collections import defaultdict
 from pathlib import Path
 
-from prosplat.ladder.stats import bootstrap_ci
+from prosplat.eval.ladder.stats import bootstrap_ci
 
 
 def _scores(path: Path) -> dict[tuple, dict]:

@@ -24,16 +24,16 @@ from pathlib import Path
 import torch
 
 from prosplat import ProSplat
+from prosplat.core.image_io import write_image
 from prosplat.data import find_scenes, load_scene
-from prosplat.distill import distill
-from prosplat.enhance import EnhanceOptions, departure, enhance, render_view
-from prosplat.evaluate import scene_at
-from prosplat.flicker import camera_path, flicker
-from prosplat.image_io import write_image
+from prosplat.eval.flicker import camera_path, flicker
+from prosplat.eval.generator import scene_at
 from prosplat.improve.mori import select_reference
 from prosplat.improve.pattern import fixed_pattern_score, lattice_score
 from prosplat.improve.warp import warp_for
 from prosplat.metrics import LPIPS, psnr
+from prosplat.pipeline.distill import distill
+from prosplat.pipeline.enhance import EnhanceOptions, departure, enhance, render_view
 from prosplat.render import render
 from prosplat.render.hole_fill import fill_holes
 
@@ -237,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=0,
         help="with --flicker-frames: also the path's enhanced frames distilled into the "
-        "Gaussians for N steps (prosplat.distill) and rendered raw",
+        "Gaussians for N steps (prosplat.pipeline.distill) and rendered raw",
     )
     p.add_argument(
         "--improve",
@@ -313,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
             w = csv.DictWriter(f, fieldnames=list(flicker_rows[0]))
             w.writeheader()
             w.writerows(flicker_rows)
-        text += "\n\nFlicker along a path between two targets (prosplat.flicker)\n\n"
+        text += "\n\nFlicker along a path between two targets (prosplat.eval.flicker)\n\n"
         text += "| size | model | scenes | raw | enhanced | ratio (median of scenes) |\n"
         text += "|---|---|---|---|---|---|\n"
         labels = [k for k in flicker_rows[0] if k not in ("scene", "size", "raw")]

@@ -26,11 +26,11 @@ import torch  # noqa: E402
 from view_grid import draw_panel, save_figure, spread_scenes  # noqa: E402
 
 from prosplat.data import load_scene  # noqa: E402
-from prosplat.enhance import render_view  # noqa: E402
-from prosplat.evaluate import scene_at  # noqa: E402
-from prosplat.ladder.geometry import resize_depths  # noqa: E402
+from prosplat.eval.generator import scene_at  # noqa: E402
+from prosplat.eval.ladder.geometry import resize_depths  # noqa: E402
 from prosplat.metrics import psnr  # noqa: E402
-from prosplat.pipeline import ProSplat  # noqa: E402
+from prosplat.pipeline.enhance import render_view  # noqa: E402
+from prosplat.pipeline.model import ProSplat  # noqa: E402
 
 
 def main() -> None:

@@ -7,7 +7,7 @@ cameras, beside two answers that need no learning:
 
 - ``constant``: every pixel at the scene's median true depth (an oracle scale, no shape);
 - ``plane sweep``: ZNCC plane-sweep stereo's winner-take-all depth
-  (:func:`prosplat.baselines.plane_sweep.plane_sweep_depths`, 64 candidates), and the same on
+  (:func:`prosplat.eval.baselines.plane_sweep.plane_sweep_depths`, 64 candidates), and the same on
   its most confident 30 % of pixels (``sweep top 30 %``) next to the generator on those
   pixels (``<model> on the sweep's top 30 %``).
 
@@ -38,12 +38,12 @@ from collections import defaultdict
 import torch
 
 from prosplat import ProSplat
-from prosplat.baselines.plane_sweep import plane_sweep_depths
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 from prosplat.data import find_scenes, load_scene
-from prosplat.depth_sweep import sweep_depths
-from prosplat.evaluate import scene_at
-from prosplat.ladder.geometry import resize_depths
+from prosplat.eval.baselines.plane_sweep import plane_sweep_depths
+from prosplat.eval.generator import scene_at
+from prosplat.eval.ladder.geometry import resize_depths
+from prosplat.pipeline.depth_sweep import sweep_depths
 
 
 def depth_scores(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict[str, float]:
@@ -95,7 +95,7 @@ def main() -> None:
         "--depth-sweep",
         action="store_true",
         help="also score each generator's depth after the local sweep the pipeline runs "
-        "(prosplat.depth_sweep, rows '<model> + depth sweep')",
+        "(prosplat.pipeline.depth_sweep, rows '<model> + depth sweep')",
     )
     ap.add_argument(
         "--crop",

@@ -1,7 +1,7 @@
 """Rasterizer benchmark: fast CPU path against the brute-force twin, forward and backward.
 
 Scenes are laid out like a feed-forward generator's output: pixel-aligned Gaussians
-unprojected from two depth maps (``prosplat.demo_scene``), rendered from a camera between
+unprojected from two depth maps (``prosplat.eval.demo_scene``), rendered from a camera between
 the two inputs. Each (size, path, mode) runs in its own subprocess so its peak memory
 (peak RSS above the RSS once the scene is built) is its own. Times are medians of --repeats.
 
@@ -35,10 +35,8 @@ def child(size: int, inputs: tuple[int, int], path: str, mode: str, repeats: int
     import torch
 
     from prosplat import Gaussians, render
-    from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-    from reference_renderer import render_reference
+    from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians
+    from prosplat.render.reference import render_reference
 
     w, h = inputs
     g = pixel_aligned_gaussians(orbit_cameras(2, w, h))
@@ -126,7 +124,7 @@ def main() -> None:
                 if r["config"] == label:
                     r["max_abs_diff_vs_twin"] = diff
 
-    from prosplat.bench.machine import cpu_name
+    from prosplat.eval.bench.machine import cpu_name
 
     machine = f"{cpu_name()}, {torch.get_num_threads()} threads, torch {torch.__version__}"
     print(f"\nMachine: {machine}; median of {args.repeats} runs\n")

@@ -4,7 +4,7 @@ Rows: one target view of each of ``--scenes`` test scenes (the generator at its 
 ``--views`` inputs, the first target). Columns: Blender's image, the raw render, the MORI
 reference warped through the rendered depth over the render (``warp paste``), and the render
 enhanced by each ``--improve LABEL=PATH`` (and, with ``--distill-steps N``, the views each
-model's enhanced targets distill into: :mod:`prosplat.distill`). Each panel is titled with
+model's enhanced targets distill into: :mod:`prosplat.pipeline.distill`). Each panel is titled with
 its PSNR.
 
     python benchmarks/stage2_views.py --data data/test128 --size 128 \\
@@ -25,14 +25,14 @@ from view_grid import draw_panel, save_figure, spread_scenes  # noqa: E402
 
 from prosplat.data import load_scene  # noqa: E402
 from prosplat.data.scene import resize_views  # noqa: E402
-from prosplat.distill import distill_enhanced  # noqa: E402
-from prosplat.enhance import render_view  # noqa: E402
-from prosplat.evaluate import pick_inputs  # noqa: E402
+from prosplat.eval.generator import pick_inputs  # noqa: E402
+from prosplat.eval.ladder import SceneInputs  # noqa: E402
+from prosplat.eval.ladder.rungs import warp_paste_view  # noqa: E402
 from prosplat.improve.io import load_improver  # noqa: E402
-from prosplat.ladder import SceneInputs  # noqa: E402
-from prosplat.ladder.rungs import warp_paste_view  # noqa: E402
 from prosplat.metrics import psnr  # noqa: E402
-from prosplat.pipeline import ProSplat  # noqa: E402
+from prosplat.pipeline.distill import distill_enhanced  # noqa: E402
+from prosplat.pipeline.enhance import render_view  # noqa: E402
+from prosplat.pipeline.model import ProSplat  # noqa: E402
 
 
 def main() -> None:
@@ -44,7 +44,7 @@ def main() -> None:
     ap.add_argument("--generator", default=None)
     ap.add_argument("--improve", action="append", default=[], metavar="LABEL=PATH")
     ap.add_argument("--distill-steps", type=int, default=0,
-                    help="also each model's views distilled (prosplat.distill, all the scene's "
+                    help="also each model's views distilled (prosplat.pipeline.distill, all the scene's "
                     "targets together) for N steps: a 'LABEL distilled' column")  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("out/stage2_views.png"))
     args = ap.parse_args()

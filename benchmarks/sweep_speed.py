@@ -4,7 +4,7 @@ both see the same machine load, with the paired ratio and how far the Gaussians 
 
 The sweeps are the learned cost volume (``prosplat.generator.cost_volume``) and the images'
 own ZNCC volume (``prosplat.generator.image_cost``, with the box filters of
-``prosplat.baselines.plane_sweep``). The older code is read from git (``git show
+``prosplat.eval.baselines.plane_sweep``). The older code is read from git (``git show
 COMMIT:path``) into modules of its own and swapped into ``prosplat.generator.model`` for its
 turns, so the rest of the network is the same code both ways.
 
@@ -56,7 +56,7 @@ def modules_at(commit: str, folder: Path) -> tuple:
     """(cost_volume, plane_sweep, image_cost) as at ``commit``, the image volume wired to
     the warp grid and box filters of that commit."""
     cv = _module_at(commit, "prosplat/generator/cost_volume.py", "old_cost_volume", folder)
-    ps = _module_at(commit, "prosplat/baselines/plane_sweep.py", "old_plane_sweep", folder)
+    ps = _module_at(commit, "prosplat/eval/baselines/plane_sweep.py", "old_plane_sweep", folder)
     ic = _module_at(commit, "prosplat/generator/image_cost.py", "old_image_cost", folder)
     ic.warp_grid, ic.patch_mean_var, ic.window_zncc = (
         cv.warp_grid,
@@ -91,7 +91,7 @@ def time_parts(before: tuple, repeats: int, size: int = 64) -> None:
     inputs (4 views, 32 candidates, ``size`` x ``size``): the ZNCC box filter (5 statistics,
     window 5), one neighbour's warp grid, and the learned volume's correlation of 16
     channels without gradients."""
-    from prosplat.baselines import plane_sweep
+    from prosplat.eval.baselines import plane_sweep
 
     old_cv, old_ps, _ = before
     g = torch.Generator().manual_seed(1)
@@ -140,8 +140,8 @@ def time_correlations(repeats: int) -> None:
 def time_generator(args: argparse.Namespace, before: tuple) -> None:
     from prosplat.data import load_scene
     from prosplat.data.scene import resize_views
-    from prosplat.evaluate import pick_inputs
-    from prosplat.pipeline import ProSplat
+    from prosplat.eval.generator import pick_inputs
+    from prosplat.pipeline.model import ProSplat
 
     model = ProSplat.from_pretrained(path=args.generator, improve=False)
     model.depth_sweep = (

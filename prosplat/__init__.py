@@ -3,13 +3,13 @@
 The library never imports ``bpy``; the Blender add-on (``addon/``) is a thin layer on top.
 """
 
-from prosplat.camera import Camera, CameraBatch, stack_cameras
-from prosplat.enhance import EnhancedView
-from prosplat.gaussians import Gaussians
+from prosplat.core.camera import Camera, CameraBatch, stack_cameras
+from prosplat.core.gaussians import Gaussians
+from prosplat.core.ply import read_ply, write_ply
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import mori_scores, overlap_scores, select_reference
-from prosplat.pipeline import ProSplat
-from prosplat.ply import read_ply, write_ply
+from prosplat.pipeline.enhance import EnhancedView
+from prosplat.pipeline.model import ProSplat
 from prosplat.render import RenderOutput, render
 
 __all__ = [

@@ -26,13 +26,13 @@ import numpy as np
 import torch
 from mathutils import Matrix
 
-from prosplat.camera import Camera
 from prosplat.convert.blender import blender_from_camera
 from prosplat.convert.nerfstudio import Frame, write_transforms
+from prosplat.core.camera import Camera
+from prosplat.core.image_io import write_depth
 from prosplat.data.overlap import overlap_matrix
 from prosplat.data.rigs import choose_rig
 from prosplat.data.splits import split_of
-from prosplat.image_io import write_depth
 from scenes.builders import SceneInfo, build_scene
 
 #: Cycles' denoiser settings by name: (prefilter of the albedo and normal passes, OIDN quality).

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The curated stage-2 training sets that scripts/train_stage2_v3.sh and train_stage2_v4.sh both
 # train on: what the pipeline renders, the shipped generator run at 64 px (its trained size) and
-# its Gaussians seen at 64 and 128 px, raw and refined (prosplat.refine, 300 steps):
+# its Gaussians seen at 64 and 128 px, raw and refined (prosplat.pipeline.refine, 300 steps):
 #   raw64 (2/3/4/6 inputs), ref64, raw128, ref128 (2/4 inputs) from data/train128;
 #   val_ref128 (4 inputs) and val_raw64 (2/4) from data/val128.
 # Finished sets are kept, so re-running only makes what is missing (~25 min on 2 cores from

@@ -29,7 +29,7 @@ def _convert(src: Path, dst: Path, half: bool) -> None:
 
 
 def main(argv: list[str]) -> int:
-    from prosplat.paths import cache_dir
+    from prosplat.core.paths import cache_dir
 
     if len(argv) != 2 or argv[0] not in ("pack", "unpack"):
         print(__doc__, file=sys.stderr)

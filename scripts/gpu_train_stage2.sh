@@ -15,7 +15,7 @@
 #   .gpu/  the scene pack(s) *.npz and lpips_alex_v0.1.f16.safetensors (LPIPS weights in
 #          float16, 5 MB instead of 10, widened back to float32 there)
 # SETS="NAME:VIEWS:SIZE:REFINE_STEPS ..." the curated sets (default raw64:2,3,4,6:64:0
-#   raw128:2,4:128:0; e.g. add ref64:2,4:64:300 for renders refined as `prosplat.refine` does).
+#   raw128:2,4:128:0; e.g. add ref64:2,4:64:300 for renders refined as `prosplat.pipeline.refine` does).
 # INIT= another stage 2 to start from (default: the shipped one; a file that travels too).
 # GENERATOR= the generator whose renders are curated (default: the shipped one; a candidate's
 #   .safetensors travels in the carry, e.g. under .gpu/). A warm machine reuses the sets an

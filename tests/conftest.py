@@ -1,5 +1,3 @@
-import sys
-from pathlib import Path
-
-# The brute-force twin (reference_renderer.py) lives beside the tests.
-sys.path.insert(0, str(Path(__file__).parent))
+"""Shared fixtures. The helper modules beside this file (``synthetic_scenes``, ``posed_data``,
+``addon_support``, ...) are importable from every test folder: pyproject's ``pythonpath``
+puts ``tests/`` on ``sys.path``."""

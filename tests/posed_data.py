@@ -1,6 +1,6 @@
 """Small posed image sets in other tools' formats, made by the tests themselves.
 
-Images are the analytic demo scene (:mod:`prosplat.demo_scene`: spheres before a checked wall
+Images are the analytic demo scene (:mod:`prosplat.eval.demo_scene`: spheres before a checked wall
 and floor), ray-cast through each pixel, with lens distortion when asked: a pixel's ray goes
 through the *undistorted* normalised coordinate, exactly as a real distorted lens maps it.
 COLMAP models are written by hand here (text) and with ``struct`` (binary), independently of
@@ -16,12 +16,12 @@ from pathlib import Path
 
 import torch
 
-from prosplat.camera import Camera
 from prosplat.convert.blender import OPENGL_TO_OPENCV
 from prosplat.convert.colmap import rotmat_to_qvec
 from prosplat.convert.distortion import Distortion, undistort_points
-from prosplat.demo_scene import orbit_cameras, raycast, texture
-from prosplat.image_io import write_image
+from prosplat.core.camera import Camera
+from prosplat.core.image_io import write_image
+from prosplat.eval.demo_scene import orbit_cameras, raycast, texture
 
 
 class _LensRays:

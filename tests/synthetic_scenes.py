@@ -6,8 +6,8 @@ import torch
 
 from prosplat import Gaussians, render
 from prosplat.convert.nerfstudio import Frame, write_transforms
-from prosplat.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
-from prosplat.image_io import write_depth, write_image
+from prosplat.core.image_io import write_depth, write_image
+from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 
 
 def write_synthetic_scene(folder, size=32, n_views=5):

@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_documented_parameter_counts_match_the_shipped_models():
     from prosplat.improve.io import DEFAULT_IMPROVE_WEIGHTS, load_improver
-    from prosplat.pipeline import ProSplat
+    from prosplat.pipeline.model import ProSplat
 
     improver = sum(p.numel() for p in load_improver(DEFAULT_IMPROVE_WEIGHTS).parameters())
     generator = sum(

@@ -24,7 +24,7 @@ def test_only_the_entry_points_import_the_cli():
     users = {
         str(p.relative_to(PACKAGE))
         for p in PACKAGE.rglob("*.py")
-        if any(m in ("prosplat.cli", "prosplat.cli_improve") for m in _imports(p))
+        if any(m in ("prosplat.cli", "prosplat.cli.improve") for m in _imports(p))
     }
     assert users == {"__main__.py", "cli.py"}
 

@@ -1,4 +1,4 @@
-"""Blender camera <-> :class:`~prosplat.camera.Camera`, as pure math (no ``bpy``).
+"""Blender camera <-> :class:`~prosplat.core.camera.Camera`, as pure math (no ``bpy``).
 
 Blender describes a perspective camera by its object's world matrix (the camera looks down
 its local −Z with +Y up, the OpenGL axes) and by lens, sensor size, sensor fit and lens shift;
@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 
 __all__ = [
     "OPENGL_TO_OPENCV",

@@ -27,8 +27,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
 from prosplat.convert.distortion import Distortion
+from prosplat.core.camera import Camera
 
 __all__ = [
     "ColmapImage",

@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 
 __all__ = [
     "MODELS",

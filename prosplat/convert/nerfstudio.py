@@ -30,9 +30,9 @@ from typing import Any
 
 import torch
 
-from prosplat.camera import Camera
 from prosplat.convert.blender import OPENGL_TO_OPENCV
 from prosplat.convert.distortion import Distortion
+from prosplat.core.camera import Camera
 
 __all__ = ["TRANSFORMS_NAME", "Frame", "TransformsFile", "read_transforms", "write_transforms"]
 

@@ -14,7 +14,7 @@ splat tools' node setups find the names they expect, and a PLY -> mesh -> PLY tr
 * ``color`` is extra: the view-independent colour ``SH0·C0 + 0.5`` (clamped to [0, 1],
   converted from display sRGB to the linear values Blender's colour attributes hold) with the
   opacity as alpha, for the viewport. It is derived, so it is ignored on the way back.
-* ``prosplat_view`` (:data:`prosplat.ply.VIEW_PROPERTY`), when the Gaussians know it: the
+* ``prosplat_view`` (:data:`prosplat.core.ply.VIEW_PROPERTY`), when the Gaussians know it: the
   input view that predicted each one (:attr:`Gaussians.views`), so a view rendered from the
   object favours the input nearest it as the library's views do. Absent or edited into
   something that is not one index >= 0 per point, the views are unknown (None).
@@ -29,9 +29,9 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from prosplat.gaussians import SH_C0, Gaussians
-from prosplat.ply import OPACITY_MAX, OPACITY_MIN, SCALE_MIN, VIEW_PROPERTY, view_indices
-from prosplat.rotations import quat_multiply
+from prosplat.core.gaussians import SH_C0, Gaussians
+from prosplat.core.ply import OPACITY_MAX, OPACITY_MIN, SCALE_MIN, VIEW_PROPERTY, view_indices
+from prosplat.core.rotations import quat_multiply
 
 __all__ = [
     "COLOR",

@@ -22,10 +22,10 @@ from typing import Any
 
 import torch
 
-from prosplat.camera import Camera
 from prosplat.convert.blender import blender_from_camera, camera_from_blender
 from prosplat.convert.colmap import read_colmap_text
 from prosplat.convert.nerfstudio import read_transforms
+from prosplat.core.camera import Camera
 
 __all__ = [
     "PosedImage",

@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 
 
 def covisibility(

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 from prosplat.data.scene import SceneData, load_scene
 
 PACK_SUFFIX = ".npz"

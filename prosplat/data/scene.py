@@ -20,9 +20,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.camera import Camera
 from prosplat.convert.nerfstudio import read_transforms
-from prosplat.image_io import read_depth, read_image
+from prosplat.core.camera import Camera
+from prosplat.core.image_io import read_depth, read_image
 
 REQUIRED_META = ("near", "far", "seed", "family")
 

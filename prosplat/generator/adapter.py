@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from prosplat.gaussians import rgb_to_sh0
-from prosplat.rotations import quat_multiply
+from prosplat.core.gaussians import rgb_to_sh0
+from prosplat.core.rotations import quat_multiply
 
 
 def rotmat_to_quat(R: Tensor) -> Tensor:

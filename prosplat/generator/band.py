@@ -4,7 +4,7 @@ Why here, and why the images: the generator's output depth is already close (at 
 the validation scenes its inverse depth is within 1.5 of the cost volume's plane steps of the
 truth for two thirds of the pixels; ``benchmarks/plane_peaks.py``), and what is left is a
 correction of a few per cent that its learned features cannot rank (BENCHMARKS "A learned
-band search") but the pixels can: the test-time depth sweep (:mod:`prosplat.depth_sweep`)
+band search") but the pixels can: the test-time depth sweep (:mod:`prosplat.pipeline.depth_sweep`)
 gains +0.15 / +0.27 dB enhanced at 64 / 128 px by correlating the images in a ±30 % band
 around that depth, with hand-set rules for when to trust a peak. This module runs the same
 search inside the network and learns the rules: per pixel, at half the matching size,

@@ -5,7 +5,7 @@ pick the right region among the 32 planes over near-far, but they cannot rank de
 planes apart. Where the truth lies within two planes of the depth head's estimate, the
 features' correlation peaks farther from it than a random candidate does (BENCHMARKS "A
 learned band search"), and a learned second search on them did not train. The test-time
-depth sweep (:mod:`prosplat.depth_sweep`) gains because it correlates the images: the pixels
+depth sweep (:mod:`prosplat.pipeline.depth_sweep`) gains because it correlates the images: the pixels
 themselves rank nearby depths wherever there is texture, and that carries over to real
 photos. This volume gives the depth head that signal at every plane, from the first step.
 
@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.baselines.plane_sweep import patch_mean_var, window_zncc
+from prosplat.eval.baselines.plane_sweep import patch_mean_var, window_zncc
 from prosplat.generator.cost_volume import planes_per_chunk, warp_grid
 
 #: Added to var_ref · var_src (images in [0, 1], variances summed over the channels): two

@@ -7,7 +7,7 @@ from dataclasses import dataclass, fields
 import torch
 from torch import Tensor
 
-from prosplat.gaussians import Gaussians
+from prosplat.core.gaussians import Gaussians
 
 
 @dataclass

@@ -60,7 +60,7 @@ class ImproveConfig:
             already reproduces images, so that path turns it off.
         working_size: the largest view (longest side) the model runs on directly. A larger
             view is enhanced at this size and only the change is carried up to the full
-            resolution (:mod:`prosplat.enhance`): memory stays bounded whatever the camera, and
+            resolution (:mod:`prosplat.pipeline.enhance`): memory stays bounded whatever the camera, and
             a model trained on small views sees textures near the scale it learned. ``prosplat
             train improve`` sets it to the training views' size; a model that measures better
             run natively above that size (the v2 candidate, up to 256 px: BENCHMARKS) can be

@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 
 __all__ = ["epipolar_distances", "fundamental_matrices", "fundamental_matrix"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from prosplat.checkpoints import read_checkpoint, write_checkpoint
+from prosplat.core.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.improve.config import ImproveConfig
 from prosplat.improve.model import ImproveModel
 

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 
 __all__ = ["centre_distances", "mori_scores", "overlap_scores", "select_reference"]
 
@@ -50,7 +50,7 @@ def _check_cameras(target: Camera, inputs: Sequence[Camera], caller: str) -> Non
 
 def centre_distances(target: Camera, inputs: Sequence[Camera]) -> Tensor:
     """[N] float64 on the CPU: the distance from ``target``'s camera centre to each input's
-    (MORI's first term; :func:`prosplat.enhance.view_weights` weighs the views by them)."""
+    (MORI's first term; :func:`prosplat.pipeline.enhance.view_weights` weighs the views by them)."""
     c_t = target.center.double().cpu()  # [3]
     centres = torch.stack([c.center.double().cpu() for c in inputs])  # [N, 3]
     return (centres - c_t).norm(dim=-1)

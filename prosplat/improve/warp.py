@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 
 #: A target pixel's point is visible to the reference when its depth there is within this
 #: fraction of the reference's own rendered depth (soft surfaces of Gaussians blur depth).
@@ -123,7 +123,7 @@ def warp_for(
     reference_camera: Camera,
 ) -> Tensor | None:
     """:func:`reference_warp` when ``improver`` takes it (``config.warp_input``), else None:
-    what every caller of :func:`prosplat.enhance.enhance` that holds the Gaussians passes as
+    what every caller of :func:`prosplat.pipeline.enhance.enhance` that holds the Gaussians passes as
     its ``warp``."""
     if not improver.config.warp_input:
         return None

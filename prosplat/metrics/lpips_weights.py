@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from prosplat.paths import CACHE_ENV, cache_dir
+from prosplat.core.paths import CACHE_ENV, cache_dir
 
 __all__ = [
     "EXPECTED_SHAPES",

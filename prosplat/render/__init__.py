@@ -3,7 +3,7 @@
 Backends: ``"cpu"`` (tile-based C++ compositing, projection in torch; the default on CPU),
 ``"gsplat"`` (CUDA, when gsplat is installed; the default for CUDA tensors). Both follow the
 rasterizer semantics of DESIGN.md; the pure-torch brute-force twin that defines them lives in
-``tests/reference_renderer.py``.
+``prosplat/render/reference.py``.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
-from prosplat.gaussians import Gaussians
+from prosplat.core.camera import Camera
+from prosplat.core.gaussians import Gaussians
 from prosplat.render.projection import ProjectedGaussians, project_gaussians
 
 __all__ = ["RenderOutput", "render", "project_gaussians", "ProjectedGaussians"]

@@ -6,7 +6,7 @@
 // and is loaded with ctypes. Threads are std::thread over tiles (no OpenMP runtime to clash
 // with torch's).
 //
-// Semantics (must match tests/reference_renderer.py exactly):
+// Semantics (must match prosplat/render/reference.py exactly):
 //   pixel (x, y) centre is (x + 0.5, y + 0.5); d = centre - mean2d
 //   alpha = min(0.99, o * exp(-0.5 * d^T Conic d)); alpha < 1/255 -> sample skipped
 //   a pixel stops before the sample that would take its transmittance below 1e-4

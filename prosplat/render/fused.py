@@ -5,7 +5,7 @@ written as ~100 torch operations on [N] tensors, whose autograd dominates a refi
 Here one pass per Gaussian computes the pixel mean, conic, depth and the dilated covariance
 diagonal (for the pixel boxes), and the backward pass recomputes that pass and walks it back
 by hand. The tests hold it to the twin, forward and backward, in float64. Colours (SH) stay
-in torch. Used by :mod:`prosplat.refine` (``RefineOptions.fused_projection``) through
+in torch. Used by :mod:`prosplat.pipeline.refine` (``RefineOptions.fused_projection``) through
 ``render(..., backend="cpu-fused")``.
 """
 
@@ -16,8 +16,8 @@ import ctypes
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
-from prosplat.gaussians import Gaussians
+from prosplat.core.camera import Camera
+from prosplat.core.gaussians import Gaussians
 from prosplat.render import native
 from prosplat.render.projection import (
     DILATION,

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
-from prosplat.gaussians import Gaussians
+from prosplat.core.camera import Camera
+from prosplat.core.gaussians import Gaussians
 from prosplat.render.projection import NEAR_PLANE
 
 

@@ -19,7 +19,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from prosplat.paths import cache_dir
+from prosplat.core.paths import cache_dir
 
 _SOURCE = Path(__file__).with_name("_cpu_kernels.cpp")
 _FLAGS = ["-O3", "-std=c++17", "-shared", "-fPIC", "-ffp-contract=off", "-pthread"]

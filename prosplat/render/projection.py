@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from prosplat.camera import Camera
-from prosplat.gaussians import Gaussians
+from prosplat.core.camera import Camera
+from prosplat.core.gaussians import Gaussians
 from prosplat.render.sh import sh_to_rgb
 
 NEAR_PLANE = 0.01

@@ -17,20 +17,20 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from prosplat.checkpoints import read_checkpoint, write_checkpoint
+from prosplat.core.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import load_source, scene_sources, source_name
 from prosplat.data.scene import resize_views
-from prosplat.enhance import (
+from prosplat.eval.generator import pick_inputs
+from prosplat.improve.epipolar import fundamental_matrix
+from prosplat.improve.mori import select_reference
+from prosplat.improve.warp import reference_warp
+from prosplat.pipeline.enhance import (
     MAX_SPLAT_RADIUS,
     OTHER_VIEWS_OPACITY,
     painted_view_gaussians,
     render_as_viewed,
 )
-from prosplat.evaluate import pick_inputs
-from prosplat.improve.epipolar import fundamental_matrix
-from prosplat.improve.mori import select_reference
-from prosplat.improve.warp import reference_warp
-from prosplat.refine import refine
+from prosplat.pipeline.refine import refine
 from prosplat.render import render
 
 CURATED_FORMAT = "prosplat-curated"
@@ -56,7 +56,7 @@ def curate_scene(
 ) -> dict[str, list[Tensor]]:
     """Samples of one scene for each input-view count in ``views`` (counts above the scene's
     input views are skipped). ``refine_steps > 0`` renders the refined scene instead (the
-    generator's Gaussians pruned to the automatic budget, then :func:`prosplat.refine.refine`
+    generator's Gaussians pruned to the automatic budget, then :func:`prosplat.pipeline.refine.refine`
     for that many steps with its default options), so stage 2 can learn refined renders.
     ``generator_height``: the generator runs at most this high, as the pipeline runs it
     (:meth:`ProSplat.generator_views`; None: the weights' trained size, 0: the views' size).
@@ -64,10 +64,10 @@ def curate_scene(
     ``render_view(..., splat_scale=)`` draws them for a model trained on such renders.
     ``max_splat_radius``: each target view leaves out the Gaussians it would draw wider than
     this fraction of its shorter side, as an enhanced view does at inference
-    (:func:`prosplat.enhance.oversized_splats`, judged before ``splat_scale``; the warp's
+    (:func:`prosplat.pipeline.enhance.oversized_splats`, judged before ``splat_scale``; the warp's
     reference depth comes from the same Gaussians); None draws every splat.
     ``other_views_opacity``: the render's colour favours the input MORI picks for the target,
-    as every view at inference does (:func:`prosplat.enhance.render_as_viewed`; 1: off)."""
+    as every view at inference does (:func:`prosplat.pipeline.enhance.render_as_viewed`; 1: off)."""
     cols: dict[str, list[Tensor]] = {}
 
     def put(key: str, value: Tensor) -> None:
@@ -207,7 +207,7 @@ def curate(
         "splat_scale": f"{splat_scale:g}",
         "max_splat_radius": "" if max_splat_radius is None else f"{max_splat_radius:g}",
         "other_views_opacity": f"{other_views_opacity:g}",
-        # the generator's depth after the local sweep (prosplat.depth_sweep) or as predicted
+        # the generator's depth after the local sweep (prosplat.pipeline.depth_sweep) or as predicted
         "depth_sweep": "on" if getattr(model, "depth_sweep", None) is not None else "off",
         "command": command,
     }

@@ -20,7 +20,7 @@ What K processes compute: ``--batch`` is per process, so one step trains on ``K�
 scenes. Step ``s`` uses a seeded permutation of the scenes cut into global batches of
 ``K·batch`` (:func:`prosplat.train.common.step_indices`); rank ``r`` takes the ``r``-th slice and
 DDP averages the gradients, so K processes with ``--batch B`` take the same steps as one process
-with ``--batch K·B`` (up to float summation order; tests/test_train.py checks this with 2 gloo
+with ``--batch K·B`` (up to float summation order; tests/train/test_train.py checks this with 2 gloo
 processes). The learning rate is not scaled with K. Only rank 0 writes checkpoints, the log and
 the progress bar; the logged loss is the mean over ranks.
 
@@ -62,7 +62,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.camera import Camera
+from prosplat.core.camera import Camera
 from prosplat.generator.config import MAX_ALEXNET_LAYERS
 from prosplat.render import render
 from prosplat.render.hole_fill import fill_holes
@@ -683,7 +683,7 @@ def _weights_metadata(pipe, trained_size: int | None = None) -> dict[str, str]:
     """The metadata ``ProSplat.save`` writes, so a training checkpoint loads with
     ``ProSplat.from_pretrained`` like any other; ``trained_size`` (the largest image height
     trained at) makes the pipeline run the weights at that size (``ProSplat.trained_size``)."""
-    from prosplat.pipeline import CHECKPOINT_FORMAT
+    from prosplat.pipeline.model import CHECKPOINT_FORMAT
 
     meta = {
         "format": CHECKPOINT_FORMAT,
@@ -713,7 +713,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
 
     from prosplat.data import SceneDataset
     from prosplat.generator.config import preset
-    from prosplat.pipeline import ProSplat, is_depthsplat_file
+    from prosplat.pipeline.model import ProSplat, is_depthsplat_file
 
     device = dist.device
     out = Path(cfg.out)
@@ -752,7 +752,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
         claim_run_folder(out, asdict(cfg), per_call=_PER_CALL, is_main=dist.is_main)
     step = 0
     if ckpt is None and cfg.init and not heads:
-        from prosplat.checkpoints import read_checkpoint
+        from prosplat.core.checkpoints import read_checkpoint
 
         if init_state is None:
             init_state = read_checkpoint(Path(cfg.init), "generator")[0]
@@ -934,7 +934,7 @@ def _init_weights(cfg: TrainConfig):
     file's metadata, not from ``--config``, so fine-tuning a grown model (v3 has a fine cost
     volume that ``tiny`` lacks) builds the network the weights were saved from. The config is
     None for a file without one (then ``--config`` must match it)."""
-    from prosplat.checkpoints import read_checkpoint
+    from prosplat.core.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
 
     state, meta = read_checkpoint(Path(cfg.init), "generator")
@@ -947,7 +947,7 @@ def _grown_init(cfg: TrainConfig):
     channels, then by ``cfg.grow_alexnet`` AlexNet layers, then by the image cost volume of
     ``cfg.grow_image_matching``, then by the band of ``cfg.grow_band``; on a resume only the
     config is used (the checkpoint holds the weights)."""
-    from prosplat.checkpoints import read_checkpoint
+    from prosplat.core.checkpoints import read_checkpoint
     from prosplat.generator.config import GeneratorConfig
     from prosplat.generator.grow import (
         grow_alexnet,

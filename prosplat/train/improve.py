@@ -447,7 +447,7 @@ def _train_joint(cfg: JointTrainConfig, progress: bool, dist: Dist) -> tuple[Pat
     from prosplat.improve.epipolar import fundamental_matrix
     from prosplat.improve.mori import select_reference
     from prosplat.metrics import LPIPS
-    from prosplat.pipeline import ProSplat
+    from prosplat.pipeline.model import ProSplat
     from prosplat.render import render
     from prosplat.train.generator import batch_cameras
 

@@ -35,12 +35,12 @@ def _file_key(path: str) -> tuple:
 
 
 def load_generator(weights: str | None, device: torch.device):
-    """A :class:`~prosplat.pipeline.ProSplat` without stage 2 for one generator file: None
+    """A :class:`~prosplat.pipeline.model.ProSplat` without stage 2 for one generator file: None
     -> the shipped weights, a ``.safetensors`` -> a prosplat generator, a ``.pth`` (``.pt``,
     ``.ckpt``) -> a DepthSplat checkpoint through ``from_pretrained(generator=...)``, at the
     size each job asks for. A DepthSplat file that does not load is a ValueError naming the
     file and what is wrong with it, on one line (the add-on shows it in the status bar)."""
-    from prosplat.pipeline import ProSplat, is_depthsplat_file
+    from prosplat.pipeline.model import ProSplat, is_depthsplat_file
 
     if not is_depthsplat_file(weights):
         return ProSplat.from_pretrained(weights or None, device=device, improve=False)
@@ -84,7 +84,7 @@ class ModelCache:
         return str(improve)
 
     def get(self, weights: str | None, device: torch.device, improve: str | bool | None = False):
-        """A :class:`~prosplat.pipeline.ProSplat` with the generator ``weights`` (None: the
+        """A :class:`~prosplat.pipeline.model.ProSplat` with the generator ``weights`` (None: the
         shipped one) and the improvement model ``improve`` (path; None: the shipped one if
         any; False: none), loading only what is not loaded yet.
 

@@ -18,10 +18,10 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from prosplat.camera import Camera
 from prosplat.convert.pointcloud import from_attributes, to_attributes, transform_gaussians
 from prosplat.convert.posed import camera_from_dict, camera_to_blender_dict, read_posed_images
-from prosplat.gaussians import Gaussians
+from prosplat.core.camera import Camera
+from prosplat.core.gaussians import Gaussians
 from prosplat.worker import Progress
 from prosplat.worker.models import MODELS
 
@@ -61,7 +61,7 @@ def load_model(weights: str | None, device: torch.device, improve: str | bool | 
 def load_frames(frames: list, progress: Progress, lo: float, hi: float, background=None):
     """Images [N,3,H,W] and cameras of input frames, all at the first frame's size; RGBA
     images composited over ``background`` ([3] in 0-1; None: over black)."""
-    from prosplat.image_io import composite, read_image_rgba
+    from prosplat.core.image_io import composite, read_image_rgba
 
     if not isinstance(frames, list) or not frames:
         raise ValueError("no input views given; an input view needs an image and a camera")
@@ -101,7 +101,7 @@ def generator_size(w: int, h: int, max_size: int | None) -> tuple[int, int]:
 
 
 def _gaussians_from(params: dict) -> Gaussians:
-    from prosplat.ply import read_ply
+    from prosplat.core.ply import read_ply
 
     if params.get("arrays") is not None:
         g = from_attributes(params["arrays"])
@@ -147,7 +147,7 @@ def task_write_transforms(params: dict, progress: Progress) -> dict:
 
 
 def task_import_ply(params: dict, progress: Progress) -> dict:
-    from prosplat.ply import read_ply
+    from prosplat.core.ply import read_ply
 
     progress(0.1, "reading PLY")
     g = read_ply(params["path"], dtype=torch.float64, on_warning=progress.warn)
@@ -156,7 +156,7 @@ def task_import_ply(params: dict, progress: Progress) -> dict:
 
 
 def task_export_ply(params: dict, progress: Progress) -> dict:
-    from prosplat.ply import write_ply
+    from prosplat.core.ply import write_ply
 
     progress(0.1, "converting")
     g = _gaussians_from(params)
@@ -173,7 +173,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     device = pick_device(params.get("device"))
     progress(0.02, "loading the generator")
     model = load_model(params.get("weights"), device)
-    from prosplat.view_choice import choose_frames
+    from prosplat.geometry.view_choice import choose_frames
 
     max_views = getattr(getattr(model.generator, "config", None), "max_views", 6)
     frames, views = choose_frames(params.get("frames"), max_views, params.get("view_choice"))
@@ -205,7 +205,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
         depths = None if depths is None else depths.cpu()
         g, t_refine = _refine(refine_budget, g, images, cameras, depths, progress)
     if params.get("ply"):
-        from prosplat.ply import write_ply
+        from prosplat.core.ply import write_ply
 
         progress(0.9, "writing PLY")
         write_ply(g, params["ply"])
@@ -232,7 +232,7 @@ def generator_info(generator) -> dict[str, str]:
 def _refine_budget(params: dict) -> tuple[int | None, float | None]:
     """(steps, seconds) of the task's refinement, (None, None) when off (0 or missing), not
     both; checked when the task starts, so a bad budget costs nothing."""
-    from prosplat.refine import check_budget
+    from prosplat.pipeline.refine import check_budget
 
     steps, seconds = params.get("refine_steps") or None, params.get("refine_seconds") or None
     if steps is not None or seconds is not None:
@@ -244,7 +244,7 @@ def _refine(budget: tuple, g: Gaussians, images, cameras, depths, progress: Prog
     """Refine the pruned Gaussians against the inputs for ``budget`` (steps, seconds) from
     :func:`_refine_budget`, reporting each step between 0.8 and 0.9; a cancel raises
     :class:`~prosplat.worker.Cancelled` like every other step. Returns (Gaussians, seconds)."""
-    from prosplat.refine import refine
+    from prosplat.pipeline.refine import refine
 
     steps, seconds = budget
     start = time.perf_counter()
@@ -269,10 +269,10 @@ def _refine(budget: tuple, g: Gaussians, images, cameras, depths, progress: Prog
 def _distill(params: dict, model, g: Gaussians, images, in_cams, cams, progress: Progress):
     """``distill_steps``: enhance every target with the inputs' aspect ratio (progress 0.2 to
     0.5), fit the Gaussians to the inputs and those views (0.5 to 0.8), so that every target
-    then renders raw from one consistent set of Gaussians (:mod:`prosplat.distill`: no
+    then renders raw from one consistent set of Gaussians (:mod:`prosplat.pipeline.distill`: no
     flicker along a camera path). Returns (Gaussians, whether they were distilled); with no
     target of the inputs' aspect ratio it warns and keeps ``g``."""
-    from prosplat.distill import distill, enhance_views, fits_inputs
+    from prosplat.pipeline.distill import distill, enhance_views, fits_inputs
 
     h, w = images.shape[-2:]
     same = [c for c in cams if fits_inputs(c, h, w)]
@@ -456,7 +456,7 @@ def _suffixes(params: dict, enhance: bool) -> list[str]:
 def _render_and_save(model, g, cam, images, in_cams, enhance, params, progress, out_dir,
                      t, i, prefix, written, frames) -> dict:  # fmt: skip
     """One view: render (raw if enhancement fails), write its files, say what was written."""
-    from prosplat.image_io import write_depth, write_image
+    from prosplat.core.image_io import write_depth, write_image
 
     fill = params["fill_holes"]  # one of FILL_MODES: task_render parsed it
     try:

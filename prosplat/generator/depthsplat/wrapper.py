@@ -27,11 +27,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from prosplat.core.rotations import quat_multiply
 from prosplat.generator.adapter import rotmat_to_quat
 from prosplat.generator.depthsplat.config import LICENCES, DepthSplatConfig
 from prosplat.generator.depthsplat.model import DepthSplatEncoder
 from prosplat.generator.output import GeneratorOutput
-from prosplat.rotations import quat_multiply
 
 
 def _per_view(value, b: int, v: int, name: str, like: Tensor) -> Tensor:

@@ -1,0 +1,3 @@
+"""The core types every part speaks: cameras, Gaussians, rotations, PLY and image files,
+checkpoints and output paths.
+"""
