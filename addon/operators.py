@@ -58,7 +58,7 @@ class PROSPLAT_OT_import_posed_images(ImportHelper, modal.JobOperator, bpy.types
 class PROSPLAT_OT_reconstruct(modal.JobOperator, bpy.types.Operator):
     """Turn the input cameras and their images into 3D Gaussians (a point-cloud object)"""
 
-    bl_idname = "prosplat.cli.reconstruct"
+    bl_idname = "prosplat.reconstruct"
     bl_label = "Reconstruct"
     bl_options = {"REGISTER", "UNDO"}
 

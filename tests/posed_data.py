@@ -17,10 +17,10 @@ from pathlib import Path
 import torch
 
 from prosplat.convert.blender import OPENGL_TO_OPENCV
-from prosplat.convert.colmap import rotmat_to_qvec
 from prosplat.convert.distortion import Distortion, undistort_points
 from prosplat.core.camera import Camera
 from prosplat.core.image_io import write_image
+from prosplat.core.rotations import rotmat_to_qvec
 from prosplat.eval.demo_scene import orbit_cameras, raycast, texture
 
 

@@ -155,7 +155,7 @@ def from_attributes(
 
 # ---- rigid / similarity transforms ----------------------------------------------------------
 def _rotmat_to_quat(R: torch.Tensor) -> torch.Tensor:
-    from prosplat.convert.colmap import rotmat_to_qvec
+    from prosplat.core.rotations import rotmat_to_qvec
 
     return rotmat_to_qvec(R)
 

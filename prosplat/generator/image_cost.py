@@ -22,8 +22,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from prosplat.eval.baselines.plane_sweep import patch_mean_var, window_zncc
 from prosplat.generator.cost_volume import planes_per_chunk, warp_grid
+from prosplat.geometry.matching import patch_mean_var, window_zncc
 
 #: Added to var_ref · var_src (images in [0, 1], variances summed over the channels): two
 #: patches with a standard deviation of 0.1 correlate at most 1/√2, of 0.03 at most 0.09, so

@@ -6,7 +6,7 @@ opposite profile: precise where a window matches uniquely, lost where it does no
 sweep over near-far finds the wrong peak on repeated or flat texture). Searching only a
 narrow band around the generator's depth takes both: for every input pixel, ``candidates``
 depths from ``depth·e^-span`` to ``depth·e^+span`` are scored by ZNCC against the other input
-views (:func:`prosplat.eval.baselines.plane_sweep.zncc_cost`, the plane-sweep baseline's cost,
+views (:func:`prosplat.geometry.matching.zncc_cost`, the plane-sweep baseline's cost,
 averaged over the source views that match best so that an occluded view does not vote), and
 the winner replaces the generator's depth where its match is unique enough
 (``min_confidence``) and not at the edge of the band (a peak at the edge means the truth lies
@@ -38,8 +38,8 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
-from prosplat.eval.baselines.plane_sweep import winner_take_all, zncc_cost
 from prosplat.generator.output import GeneratorOutput
+from prosplat.geometry.matching import winner_take_all, zncc_cost
 
 __all__ = [
     "DepthSweepOptions",

@@ -195,7 +195,7 @@ def test_panels_and_menus_draw(blank, tmp_path: Path) -> None:
     preferences.draw_requirements(_Layout(log), prefs)
     ops = {name for kind, name in log if kind == "operator"}
     assert {
-        "prosplat.cli.reconstruct",
+        "prosplat.reconstruct",
         "prosplat.render_view",
         "prosplat.capture_inputs",
         "prosplat.import_ply",

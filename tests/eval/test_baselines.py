@@ -173,11 +173,11 @@ def test_optimize_rejects_bad_input():
 
 
 def test_box_mean_is_the_pooling_it_replaces():
-    """plane_sweep.box_mean (running sums) against avg_pool2d with shrinking border windows, on
+    """matching.box_mean (running sums) against avg_pool2d with shrinking border windows, on
     odd sizes, batches and a non-contiguous view (how the sweep calls it)."""
     import torch.nn.functional as F
 
-    from prosplat.eval.baselines.plane_sweep import WINDOW, box_mean
+    from prosplat.geometry.matching import WINDOW, box_mean
 
     g = torch.Generator().manual_seed(0)
     for shape in ((1, 3, 7, 5), (4, 1, 33, 64), (2, 3, 3, 3)):
@@ -207,7 +207,7 @@ def test_zncc_cost_in_chunks_of_planes_is_the_whole_cost(best_views, monkeypatch
     """The sweep warps a chunk of candidates at a time (_CHUNK_PIXELS, small for speed):
     chunks of 2 of 5 planes (a short last one), summed or kept per view for the best-view
     selection, give the cost of all planes at once, bit for bit."""
-    from prosplat.eval.baselines import plane_sweep
+    from prosplat.geometry import matching as plane_sweep
 
     images, cams, _ = demo_views(3, 24, "noise")
     depths = torch.linspace(2.5, 6.0, 5)

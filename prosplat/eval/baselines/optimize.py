@@ -30,7 +30,8 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
-from prosplat.eval.baselines.plane_sweep import _check_inputs, plane_sweep_gaussians
+from prosplat.eval.baselines.plane_sweep import plane_sweep_gaussians
+from prosplat.geometry.matching import check_inputs
 from prosplat.pipeline.refine import LearningRates, RefineOptions, photometric_loss, refine
 from prosplat.render import render
 
@@ -127,7 +128,7 @@ def optimize_gaussians(
         before and after), ``loss_history`` (per step, on that step's view), ``n_gaussians``,
         ``init``, ``scene_extent``.
     """
-    _check_inputs(images, cameras, near, far)
+    check_inputs(images, cameras, near, far)
     _check_images_size(images)
     if deterministic:
         threads = torch.get_num_threads()
