@@ -11,15 +11,15 @@ STAMP  := $(VENV)/.prosplat-setup
 
 setup: $(STAMP)
 
-# Run-time requirements are held at addon/pins.py's versions (the set the add-on installs and
+# Run-time requirements are held at addon/core/pins.py's versions (the set the add-on installs and
 # the tests assert on), so a clean clone tests what was pinned, not whatever the index holds
 # today. To move a pin: pip install -U it in .venv, then python scripts/pin_requirements.py.
 CONSTRAINTS := $(VENV)/constraints.txt
 
-$(STAMP): pyproject.toml Makefile addon/pins.py
+$(STAMP): pyproject.toml Makefile addon/core/pins.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -c "import runpy; p = runpy.run_path('addon/pins.py'); \
+	$(PY) -c "import runpy; p = runpy.run_path('addon/core/pins.py'); \
 		print(*(f'{n}=={v}' for n, v in p['PINS'] if n != 'torch'), sep='\n')" > $(CONSTRAINTS)
 	$(PY) -m pip install --quiet torch==2.13.0
 	$(PY) -m pip install --quiet -c $(CONSTRAINTS) -e ".[blender,test,bench,lora]"
@@ -45,7 +45,7 @@ $(STAMP_BPY): $(STAMP)
 	@test -n "$(PYTHON313)" || { echo "no Python 3.13 found: make PYTHON313=/path/to/python3.13"; exit 1; }
 	test -x $(PY_BPY) || $(PYTHON313) -m venv $(VENV_BPY)
 	$(PY_BPY) -m pip install --quiet --upgrade pip
-	$(PY_BPY) -m pip install --quiet torch==$$($(PY) -c "import runpy; print(runpy.run_path('addon/pins.py')['TORCH_VERSION'])")
+	$(PY_BPY) -m pip install --quiet torch==$$($(PY) -c "import runpy; print(runpy.run_path('addon/core/pins.py')['TORCH_VERSION'])")
 	$(PY_BPY) -m pip install --quiet -c $(CONSTRAINTS) bpy==$(BPY) -e ".[test]"
 	$(PY_BPY) -m pip uninstall --quiet --yes triton
 	touch $(STAMP_BPY)

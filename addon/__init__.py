@@ -2,16 +2,29 @@
 
 A Blender extension (``blender_manifest.toml``, Blender >= 4.2) and thin glue over the
 ``prosplat`` library: operators and a sidebar panel (3D Viewport > N > ProSplat), Gaussians
-shown as a point cloud, and a headless API (:mod:`.api`). The heavy work runs in
+shown as a point cloud, and a headless API (:mod:`.blender.api`). The heavy work runs in
 :mod:`prosplat.worker`, in Blender's Python or an external one, so registering never needs
 torch.
+
+Two layers: :mod:`.core` never imports ``bpy`` or ``mathutils`` (maths, pins, jobs, the
+worker process, pip; tested in plain Python), and :mod:`.blender` is everything that does.
+``api`` is imported here so scripts keep ``from addon import api`` (or
+``from bl_ext.user_default.prosplat import api``).
 """
 
 from __future__ import annotations
 
 import bpy
 
-from . import jobs, operators, preferences, properties, runtime, ui
+from .blender import (
+    api,  # noqa: F401 - the headless API, as ``addon.api`` for scripts
+    operators,
+    preferences,
+    properties,
+    runtime,
+    ui,
+)
+from .core import jobs
 
 bl_info = {  # read only by Blender's legacy add-on loader; extensions use the manifest
     "name": "ProSplat",

@@ -48,7 +48,10 @@ def child(mode: str, scene: Path, calls: int, threads: int, code: Path) -> list[
     sys.path[:0] = [str(code), str(code / "tests")]
     from addon_support import reset_scene
 
-    from addon import cameras, pointcloud, runtime, steps
+    try:  # this layout; a checkout from before the core/blender split has them in addon/
+        from addon.blender import cameras, pointcloud, runtime, steps
+    except ImportError:
+        from addon import cameras, pointcloud, runtime, steps
 
     prefs = runtime.Defaults()
     prefs.threads = threads  # attributes an older add-on does not know are simply unused
@@ -76,7 +79,8 @@ def child(mode: str, scene: Path, calls: int, threads: int, code: Path) -> list[
         res = bpy.ops.prosplat.render_view("EXEC_DEFAULT")
         times.append(time.perf_counter() - t)
         assert res == {"FINISHED"}, res
-    if hasattr(jobs := sys.modules["addon.jobs"], "shutdown_workers"):
+    jobs = sys.modules.get("addon.core.jobs") or sys.modules["addon.jobs"]
+    if hasattr(jobs, "shutdown_workers"):
         jobs.shutdown_workers()
     return times
 

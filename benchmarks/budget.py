@@ -59,7 +59,7 @@ def main() -> None:
         ins = sc.input_indices
         cams = [sc.cameras[i] for i in ins]
         near, far = float(sc.near[ins].min()), float(sc.far[ins].max())
-        out = model.reconstruct_full(sc.images[ins], cams, near, far)
+        out = model.run_generator(sc.images[ins], cams, near, far)
         g_all, depths = out.gaussians(0), out.depths[0]
         view_index = torch.arange(len(ins)).repeat_interleave(depths.shape[1] * depths.shape[2])
         for label, kwargs in SETTINGS:

@@ -89,7 +89,7 @@ def measure(args: argparse.Namespace, changes: dict, flicker_rows: list) -> list
             images, cams, idx = at.images, at.cameras, at.inputs
             inp_images, inp_cams = at.input_images, at.input_cameras
             # as the pipeline runs it: at most the weights' trained size (--generator-size)
-            g = model.reconstruct_pruned(
+            g = model.reconstruct(
                 inp_images, inp_cams, at.near, at.far, generator_height=args.generator_size
             ).gaussians.with_scale_factor(args.splat_scale)  # every render below at that scale
             if args.flicker_frames and size == args.sizes[0]:

@@ -73,7 +73,7 @@ def main() -> None:
         vmax = float(inv[valid].quantile(0.98)) if valid.any() else 1.0
         panels = {"Blender": (gt, "Blender"), "Blender depth": (inv, "Blender depth")}
         for label, model in models.items():
-            rec = model.reconstruct_pruned(rs.input_images, rs.input_cameras, rs.near, rs.far)
+            rec = model.reconstruct(rs.input_images, rs.input_cameras, rs.near, rs.far)
             raw = render_view(rec.gaussians, rs.cameras[t]).image.clamp(0, 1)
             panels[f"{label} raw"] = (raw, f"{label} raw {float(psnr(raw, gt)):.1f}")
             d = resize_depths(rec.depths[:1], true_depth.shape[-1], true_depth.shape[-2])[0]

@@ -24,7 +24,7 @@ pixels within 25 % of the truth).
     python benchmarks/input_depth.py --data data/test128 --size 128 --crop 128x64 --no-sweep
     python benchmarks/input_depth.py --data data/test128 --size 128 --no-sweep --depth-sweep
 
-``reconstruct_full`` is the generator alone: its depth before the pipeline's depth sweep
+``ProSplat.run_generator`` is the generator alone: its depth before the pipeline's depth sweep
 (``--depth-sweep`` adds the swept rows).
 """
 
@@ -125,7 +125,7 @@ def main() -> None:
         const = torch.full_like(gt, float(gt[valid].median()))
         rows["constant (true median)"][kind].append(depth_scores(const, gt, valid))
         preds = {
-            label: m.reconstruct_full(images, cameras, r.near, r.far).depths[0]
+            label: m.run_generator(images, cameras, r.near, r.far).depths[0]
             for label, m in models.items()
         }
         if args.depth_sweep:

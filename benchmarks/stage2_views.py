@@ -24,8 +24,8 @@ import torch  # noqa: E402
 from view_grid import draw_panel, save_figure, spread_scenes  # noqa: E402
 
 from prosplat.data import load_scene  # noqa: E402
+from prosplat.data.rigs import pick_inputs  # noqa: E402
 from prosplat.data.scene import resize_views  # noqa: E402
-from prosplat.eval.generator import pick_inputs  # noqa: E402
 from prosplat.eval.ladder import SceneInputs  # noqa: E402
 from prosplat.eval.ladder.rungs import warp_paste_view  # noqa: E402
 from prosplat.improve.io import load_improver  # noqa: E402
@@ -65,7 +65,7 @@ def main() -> None:
         t = scene.target_indices[0]
         gt_all, tcam = resize_views(scene.images[[t]], [scene.cameras[t]], args.size)
         gt, cam = gt_all[0], tcam[0]
-        g = model.reconstruct_pruned(imgs, cams, near, far).gaussians
+        g = model.reconstruct(imgs, cams, near, far).gaussians
         inp = SceneInputs(imgs, cams, None, near, far)
         panels = {"Blender": gt, "raw": render_view(g, cam).image}
         panels["warp paste"] = warp_paste_view(g, cam, inp).image

@@ -139,8 +139,8 @@ def time_correlations(repeats: int) -> None:
 
 def time_generator(args: argparse.Namespace, before: tuple) -> None:
     from prosplat.data import load_scene
+    from prosplat.data.rigs import pick_inputs
     from prosplat.data.scene import resize_views
-    from prosplat.eval.generator import pick_inputs
     from prosplat.pipeline.model import ProSplat
 
     model = ProSplat.from_pretrained(path=args.generator, improve=False)
@@ -170,7 +170,7 @@ def time_generator(args: argparse.Namespace, before: tuple) -> None:
                             generator_model.plane_sweep_cost_volume = psv
                             generator_model.image_cost_volume = icv
                             t0 = time.perf_counter()
-                            g = model.reconstruct(*inputs, near, far)
+                            g = model.reconstruct(*inputs, near, far, budget="all").gaussians
                             if rep:
                                 times[name].append(time.perf_counter() - t0)
                             means[name] = g.means

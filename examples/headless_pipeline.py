@@ -87,7 +87,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--transforms", help="posed images to import instead of building a scene")
     ap.add_argument("--size", type=int, default=64, help="render size of the built scene")
     args = ap.parse_args(argv)
-    api = importlib.import_module(f"{load_addon().__name__}.api")
+    api = importlib.import_module(f"{load_addon().__name__}.blender.api")
     t0 = time.perf_counter()
     if args.transforms:
         bpy.ops.wm.read_factory_settings(use_empty=True)

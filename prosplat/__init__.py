@@ -10,6 +10,7 @@ from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import mori_scores, overlap_scores, select_reference
 from prosplat.pipeline.enhance import EnhancedView
 from prosplat.pipeline.model import ProSplat
+from prosplat.pipeline.reconstruction import Reconstruction
 from prosplat.render import RenderOutput, render
 
 __all__ = [
@@ -18,6 +19,7 @@ __all__ = [
     "EnhancedView",
     "Gaussians",
     "ProSplat",
+    "Reconstruction",
     "RenderOutput",
     "fundamental_matrix",
     "mori_scores",

@@ -1,7 +1,7 @@
-"""Write ``addon/pins.py``: the exact requirement set the add-on's Install Requirements
+"""Write ``addon/core/pins.py``: the exact requirement set the add-on's Install Requirements
 button installs, read from the environment the tests ran in.
 
-    python scripts/pin_requirements.py            # rewrite addon/pins.py
+    python scripts/pin_requirements.py            # rewrite addon/core/pins.py
     python scripts/pin_requirements.py --check    # exit 1 if it is out of date (CI, tests)
     python scripts/pin_requirements.py --sizes    # also re-measure the download-size table
 
@@ -28,7 +28,7 @@ from packaging.requirements import Requirement
 from packaging.specifiers import SpecifierSet
 
 ROOT = Path(__file__).resolve().parents[1]
-OUT = ROOT / "addon" / "pins.py"
+OUT = ROOT / "addon" / "core" / "pins.py"
 BLENDER_PROVIDES = {"numpy"}  # Blender's Python has these; never installed beside them
 #: The Pythons ``make test`` installs this set into and tests (Blender 4.2-5.0 bundle 3.11,
 #: 5.1 and later 3.13): each pin must have a wheel for both.
@@ -148,7 +148,9 @@ def current_sizes() -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--check", action="store_true", help="fail if addon/pins.py is out of date")
+    ap.add_argument(
+        "--check", action="store_true", help="fail if addon/core/pins.py is out of date"
+    )
     ap.add_argument("--sizes", action="store_true", help="re-measure the wheel sizes")
     args = ap.parse_args(argv)
     sizes = current_sizes()

@@ -25,14 +25,16 @@ import os
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from prosplat.cli.demo_report import DemoResult, ViewResult, write_report
 from prosplat.core.camera import Camera
+from prosplat.core.paths import fresh_folder, staged_folder
 from prosplat.data.scene import SceneData, load_scene, resize_views
 
 DEMO_SCENE = "tabletop"  # a family or hard-scene name (scenes.builders)
@@ -41,17 +43,6 @@ DEMO_SEED = 950002  # test split: never seen in training
 #: the views at twice it). The shipped generator runs up to 128 px (``TRAINED_SIZE``);
 #: ``--size 128`` shows it there.
 DEMO_SIZE = 64
-# files run_demo writes at the top of its folder (besides scene/ and views/)
-DEMO_FILES = (
-    "scene.blend",
-    "gaussians.ply",
-    "overview.png",
-    "plot.png",
-    "metrics.csv",
-    "metrics.json",
-    "metrics.md",
-    "report.md",
-)
 
 
 @dataclass(frozen=True)
@@ -95,38 +86,6 @@ class DemoConfig:
         from prosplat.pipeline.refine import check_refine_args
 
         check_refine_args(self.refine_steps, self.refine_seconds, one_run=True)
-
-
-@dataclass
-class ViewResult:
-    """One target view: its scores against Blender and its timings (ms)."""
-
-    index: int  # view index in the scene folder
-    kind: str  # "interpolation" | "extrapolation"
-    reference: int  # the scene view index of the input MORI chose
-    psnr_raw: float
-    psnr_enhanced: float
-    ssim_raw: float
-    ssim_enhanced: float
-    lpips_raw: float
-    lpips_enhanced: float
-    render_ms: float
-    mori_ms: float
-    enhance_ms: float
-    images: dict[str, Tensor] = field(default_factory=dict, repr=False)  # panels [3,H,W]
-    guard: str | None = None  # why the raw render was kept (prosplat.pipeline.enhance's guard)
-
-
-@dataclass
-class DemoResult:
-    out: Path
-    scene_folder: Path
-    views: list[ViewResult]
-    timings: dict[str, float]  # seconds: blender, reconstruct, prune, views, total
-    gaussians: dict[str, int]  # budget stats (input, kept, ...)
-    blender_view_s: float  # Cycles seconds per rendered view (median)
-    settings: dict
-    ladder: list[dict] = field(default_factory=list)  # prosplat.eval.ladder.report.summarise
 
 
 def demo_ladder(model, scene: SceneData, size: int, budget) -> list[dict]:
@@ -182,16 +141,6 @@ def render_scene_with_blender(cfg: DemoConfig, dest: Path, blend: Path) -> Path:
     return folder
 
 
-def _remove_earlier_demo(out: Path) -> None:
-    """With --overwrite: delete what an earlier demo wrote into ``out`` (and nothing else)."""
-    import shutil
-
-    for name in ("scene", "views"):
-        shutil.rmtree(out / name, ignore_errors=True)
-    for name in DEMO_FILES:
-        (out / name).unlink(missing_ok=True)
-
-
 def downsample(scene: SceneData, size: int) -> tuple[Tensor, list[Camera]]:
     """The scene's images [V,3,size,size] and cameras at the model resolution."""
     return resize_views(scene.images, scene.cameras, size)
@@ -223,21 +172,31 @@ def _refine(cfg: DemoConfig, gaussians, images: Tensor, cameras: list[Camera], d
 
 
 def run_demo(cfg: DemoConfig) -> DemoResult:
-    """Run the whole demo into a fresh folder (see the module docstring); returns the numbers."""
-    from prosplat.cli.demo_report import write_report
-    from prosplat.core.paths import fresh_folder
+    """Run the whole demo into a fresh folder (see the module docstring); returns the numbers.
+
+    Everything is written aside and moved into place when complete
+    (:func:`~prosplat.core.paths.staged_folder`): a failure or Ctrl-C leaves no half-written
+    folder. With ``--overwrite`` each file and folder of the demo (``scene/``, ``views/``,
+    the PLY, the report...) replaces the earlier one; anything else there stays."""
+    cfg.check()
+    out = fresh_folder(cfg.out, cfg.overwrite)
+    print(f"prosplat demo: writing into {out}")
+    with staged_folder(out) as partial:
+        result = _demo_into(partial, cfg)
+    result.scene_folder = out / result.scene_folder.relative_to(partial)
+    result.out = out
+    return result
+
+
+def _demo_into(out: Path, cfg: DemoConfig) -> DemoResult:
+    """:func:`run_demo`'s work, every file written into the new folder ``out``."""
     from prosplat.core.ply import write_ply
     from prosplat.geometry.budget import budget_arg, prune_pixel_aligned
     from prosplat.metrics import lpips, psnr, ssim
     from prosplat.pipeline.model import ProSplat
 
-    cfg.check()
     t_start = time.perf_counter()
-    out = fresh_folder(cfg.out, cfg.overwrite)
-    if cfg.overwrite:
-        _remove_earlier_demo(out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"prosplat demo: writing into {out}")
 
     t0 = time.perf_counter()
     folder = render_scene_with_blender(cfg, out / "scene", out / "scene.blend")
@@ -257,11 +216,11 @@ def run_demo(cfg: DemoConfig) -> DemoResult:
     )
     t0 = time.perf_counter()
     # the generator at the demo's size, then the depth sweep the pipeline runs by default;
-    # refinement starts from these Gaussians, as the pipeline's (ProSplat.reconstruct_refined)
+    # refinement starts from these Gaussians, as the pipeline's (ProSplat.reconstruct)
     refining = bool(cfg.refine_steps or cfg.refine_seconds is not None)
-    recon, _ = model.generate(in_images, in_cams, near, far, height=0)
+    recon = model.reconstruct(in_images, in_cams, near, far, budget="all", generator_height=0)
     t_recon = time.perf_counter() - t0
-    g_all, depths = recon.gaussians(0), recon.depths[0]
+    g_all, depths = recon.gaussians, recon.depths
     t0 = time.perf_counter()
     budget = budget_arg(cfg.budget)
     gaussians, _, stats = prune_pixel_aligned(g_all, depths, in_cams, budget=budget)

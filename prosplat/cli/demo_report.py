@@ -14,11 +14,43 @@ from __future__ import annotations
 import csv
 import json
 import statistics
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from prosplat.cli.demo import DemoResult, ViewResult
+from torch import Tensor
+
+
+@dataclass
+class ViewResult:
+    """One target view: its scores against Blender and its timings (ms)."""
+
+    index: int  # view index in the scene folder
+    kind: str  # "interpolation" | "extrapolation"
+    reference: int  # the scene view index of the input MORI chose
+    psnr_raw: float
+    psnr_enhanced: float
+    ssim_raw: float
+    ssim_enhanced: float
+    lpips_raw: float
+    lpips_enhanced: float
+    render_ms: float
+    mori_ms: float
+    enhance_ms: float
+    images: dict[str, Tensor] = field(default_factory=dict, repr=False)  # panels [3,H,W]
+    guard: str | None = None  # why the raw render was kept (prosplat.pipeline.enhance's guard)
+
+
+@dataclass
+class DemoResult:
+    out: Path
+    scene_folder: Path
+    views: list[ViewResult]
+    timings: dict[str, float]  # seconds: blender, reconstruct, prune, views, total
+    gaussians: dict[str, int]  # budget stats (input, kept, ...)
+    blender_view_s: float  # Cycles seconds per rendered view (median)
+    settings: dict
+    ladder: list[dict] = field(default_factory=list)  # prosplat.eval.ladder.report.summarise
+
 
 PANELS = (
     ("reference", "input (MORI reference)"),

@@ -10,7 +10,7 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
    the shipped weights were trained at) with the intrinsics scaled to match;
 3. takes near/far from ``--near/--far``, else from the transforms file's ``near``/``far``
    (per frame or top level), else from the COLMAP points the inputs see, else from the
-   cameras (:func:`prosplat.pipeline.model.near_far_from_cameras`);
+   cameras (:func:`prosplat.geometry.rig.near_far_from_cameras`);
 4. reconstructs, prunes to the Gaussian budget (``--budget``), optionally refines what the
    budget kept against the inputs (``--refine-steps/--refine-seconds``, with a progress
    bar) and writes ``gaussians.ply``;
@@ -22,6 +22,13 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
    ``inputs/``), so the result opens in Blender with its cameras.
 
 --out must be new or empty; ``--overwrite`` lets it replace this command's own files there.
+Everything is written into a hidden folder beside --out and moved there only when complete,
+so a failure or Ctrl-C leaves no half-written folder (with ``--overwrite``, each file or
+folder the run made replaces the one of the same name; nothing else there is touched).
+
+Frames that list an image an earlier frame lists are left out (with a warning), and frames
+whose cameras coincide count as one view when the inputs are picked; fewer than 2 distinct
+camera poses is refused with one line.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from pathlib import Path
 
 import torch
 
+from prosplat.core.paths import staged_folder
 from prosplat.pipeline.distill import DEFAULT_DISTILL_STEPS
 from prosplat.pipeline.enhance import OTHER_VIEWS_OPACITY
 
@@ -284,8 +292,8 @@ class ReconstructResult:
 
 def near_far(posed, inputs: list[int], cameras, near, far) -> tuple[float, float, str]:
     """near/far and where they came from: the flags, else the file's own near/far, else the
-    COLMAP points the inputs observe, else :func:`~prosplat.pipeline.model.near_far_from_cameras`."""
-    from prosplat.pipeline.model import near_far_from_cameras
+    COLMAP points the inputs observe, else :func:`~prosplat.geometry.rig.near_far_from_cameras`."""
+    from prosplat.geometry.rig import near_far_from_cameras
     from prosplat.pipeline.posed_views import near_far_from_points
 
     src = []
@@ -330,9 +338,12 @@ def prepare(args: argparse.Namespace, keep_targets: int = 0):
     posed = load_posed_set(args.input, args.images, skip_missing=args.skip_missing)
     if posed.missing:
         print(missing_note(posed))
+    if posed.repeats:
+        print(repeats_note(posed))
     count = args.num_inputs
-    if count is None:
-        count = max(2, min(DEFAULT_INPUTS, len(posed.views) - keep_targets))
+    if count is None:  # coincident cameras are one view (pick_views)
+        distinct = sum(i == first for i, first in enumerate(posed.first_of_pose()))
+        count = max(2, min(DEFAULT_INPUTS, distinct - keep_targets))
     inputs = pick_views(posed, args.inputs, count)
     background, bg_text = resolve_background(posed, args.background)
     first = posed.views[inputs[0]].camera
@@ -346,6 +357,17 @@ def missing_note(posed) -> str:
     return (
         f"left out {len(posed.missing)} frames of {posed.source} whose images are missing "
         f"({shown}); {len(posed.views)} frames remain"
+    )
+
+
+def repeats_note(posed) -> str:
+    """One warning line naming the frames left out because an earlier frame lists the same
+    image (the first few)."""
+    more = ", ..." if len(set(posed.repeats)) > 5 else ""
+    shown = ", ".join(list(dict.fromkeys(posed.repeats))[:5]) + more
+    return (
+        f"warning: left out {len(posed.repeats)} frames of {posed.source} that list an image "
+        f"an earlier frame lists ({shown}); {len(posed.views)} remain"
     )
 
 
@@ -366,7 +388,7 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
     """(Gaussians, seconds, note): generator + budget pruning, then refinement when asked.
 
     ``--budget`` prunes in both cases (refinement fits only the Gaussians the budget keeps,
-    :meth:`~prosplat.ProSplat.reconstruct_refined`), and refinement shows a progress bar
+    :meth:`~prosplat.ProSplat.reconstruct`), and refinement shows a progress bar
     (steps, or seconds under ``--refine-seconds``) and its statistics in the note, since it
     is the one step here that can run for tens of seconds."""
     from tqdm import tqdm
@@ -378,8 +400,8 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
     # the flags were checked by run_reconstruct before any work (refine_kwargs); 0 is "off"
     steps, seconds = args.refine_steps or None, args.refine_seconds or None
     if steps is None and seconds is None:
-        pruned = model.reconstruct_pruned(images, cameras, near, far, budget=budget)
-        g, stats = pruned.gaussians, pruned.stats
+        rec = model.reconstruct(images, cameras, near, far, budget=budget)
+        g, stats = rec.gaussians, rec.prune_stats
         note = f"budget kept {stats['kept']:,} of {stats['input']:,}"
         return g, time.perf_counter() - t0, note
     # under a time budget the bar counts seconds, so it ends where the budget does
@@ -394,20 +416,31 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
             bar.set_postfix(loss=f"{loss:.4f}", refresh=False)
             bar.update(done - bar.n)  # tqdm redraws at most every 0.1 s
 
-        result = model.reconstruct_refined(
-            images, cameras, near, far, steps=steps, seconds=seconds, budget=budget,
-            progress=progress,
+        rec = model.reconstruct(
+            images, cameras, near, far, budget=budget, refine_steps=steps,
+            refine_seconds=seconds, progress=progress,
         )  # fmt: skip
-    st = result.stats
+    st = rec.refine_stats
     note = (
-        f"budget kept {st.n_gaussians:,} of {st.pruned_from:,}; refined {st.steps} steps in "
+        f"budget kept {st.n_gaussians:,} of {rec.prune_stats['input']:,}; refined {st.steps} steps in "
         f"{st.seconds:.1f} s, input-view loss {st.initial_loss:.4f} -> {st.final_loss:.4f}"
     )
-    return result.gaussians.detach(), time.perf_counter() - t0, note
+    return rec.gaussians.detach(), time.perf_counter() - t0, note
 
 
 def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
-    """Everything ``prosplat reconstruct`` does (see the module docstring)."""
+    """Everything ``prosplat reconstruct`` does (see the module docstring), written aside and
+    moved to ``--out`` only when complete (:func:`~prosplat.core.paths.staged_folder`): a
+    failure or Ctrl-C leaves no half-written folder, and ``--out`` as it was."""
+    out = out_folder(args.out, args.overwrite)  # refused before any work
+    with staged_folder(out) as partial:
+        result = _reconstruct_into(partial, args)
+    result.out = out
+    return result
+
+
+def _reconstruct_into(out: Path, args: argparse.Namespace) -> ReconstructResult:
+    """:func:`run_reconstruct`'s work, every file written into the new folder ``out``."""
     from tqdm import tqdm
 
     from prosplat.convert.nerfstudio import Frame, write_transforms
@@ -417,7 +450,6 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     from prosplat.render.hole_fill import fill_holes as hole_fill
 
     t_start = time.perf_counter()
-    out = out_folder(args.out, args.overwrite)
     posed, inputs, background, bg_text, size = prepare(args)
     which = render_selection(posed.names, inputs, args.render, args.max_renders)
     path = path_cameras(args.render, size)
@@ -479,7 +511,7 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     t_views = time.perf_counter() - t0
     if args.distill_steps:
         t0 = time.perf_counter()
-        note += _distill_renders(g, images, cameras, todo, enhanced, background, args)
+        note += _distill_renders(g, images, cameras, todo, enhanced, background, args, out)
         t_views += time.perf_counter() - t0
     result = ReconstructResult(
         out=out,
@@ -498,7 +530,7 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     return result
 
 
-def _distill_renders(g, images, cameras, todo, enhanced, background, args) -> str:
+def _distill_renders(g, images, cameras, todo, enhanced, background, args, out: Path) -> str:
     """``--distill-steps``: fit ``g`` to the inputs and the enhanced renders of the cameras
     with the inputs' aspect ratio (refinement fits views of one size), write
     ``gaussians_distilled.ply`` and every camera's render from it; returns a note for the
@@ -519,11 +551,11 @@ def _distill_renders(g, images, cameras, todo, enhanced, background, args) -> st
     # fitted over the background the renders were composited on (white for NeRF-synthetic)
     options = RefineOptions(background=tuple(float(x) for x in background))
     result = distill(g, images, cameras, views, [c for c, _ in same], steps=steps, options=options)
-    write_ply(result.gaussians, args.out / "gaussians_distilled.ply", overwrite=args.overwrite)
+    write_ply(result.gaussians, out / "gaussians_distilled.ply", overwrite=args.overwrite)
     for name, cam, _ in todo:
         with torch.no_grad():
             rgb = render(result.gaussians, cam, background=background).rgb.clamp(0, 1)
-        write_image(args.out / "renders" / f"{name}_distilled.png", rgb, overwrite=args.overwrite)
+        write_image(out / "renders" / f"{name}_distilled.png", rgb, overwrite=args.overwrite)
     skipped = len(enhanced) - len(same)
     return (
         f"; distilled {result.stats.steps} steps from {len(same)} enhanced views"

@@ -12,8 +12,12 @@ from __future__ import annotations
 import random
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
+
+if TYPE_CHECKING:
+    from prosplat.data.scene import SceneData
 
 Pose = tuple[Sequence[float], Sequence[float]]  # (eye, look_at)
 
@@ -32,16 +36,20 @@ def farthest_point_sampling(points: torch.Tensor, k: int, first: int = 0) -> lis
     """Indices of ``k`` points of ``points [T,3]``, each the farthest from those already picked.
 
     Starts from ``first``; ties resolve to the lowest index, so the result is deterministic.
+    No point is picked twice: when every point left coincides with a picked one (fewer
+    distinct points than ``k``), the lowest index not yet picked comes next.
     """
     t = points.shape[0]
     if not 1 <= k <= t:
         raise ValueError(f"cannot pick {k} of {t} points")
     chosen = [first]
     dist = (points - points[first]).norm(dim=-1)
+    dist[first] = -1.0  # picked: below any distance, so argmax never returns it again
     for _ in range(k - 1):
         nxt = int(torch.argmax(dist))
         chosen.append(nxt)
         dist = torch.minimum(dist, (points - points[nxt]).norm(dim=-1))
+        dist[chosen] = -1.0
     return chosen
 
 
@@ -79,3 +87,12 @@ def choose_rig(
     picks += [(i, "extrapolation") for i in rng.sample(outside, n_out)]
     picks.sort()
     return Rig(tuple(inputs), tuple(i for i, _ in picks), tuple(k for _, k in picks))
+
+
+def pick_inputs(scene: SceneData, n: int) -> list[int]:
+    """``n`` of the scene's input views, spread by farthest-point sampling of their centres."""
+    ins = scene.input_indices
+    if n > len(ins):
+        raise ValueError(f"{scene.folder}: has {len(ins)} input views, cannot evaluate {n}")
+    centers = torch.stack([scene.cameras[i].center for i in ins])
+    return sorted(ins[k] for k in farthest_point_sampling(centers, n))

@@ -26,10 +26,11 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
-from prosplat.core.paths import fresh_folder
-from prosplat.data.rigs import farthest_point_sampling
+from prosplat.core.paths import fresh_folder, staged_folder
+from prosplat.data.rigs import pick_inputs
 from prosplat.data.scene import SceneData
 from prosplat.geometry.budget import prune_pixel_aligned
+from prosplat.metrics.depth import abs_rel
 from prosplat.render import render
 
 # A method maps (images [V,3,H,W], cameras, near, far) to (Gaussians, per-view depths [V,H,W]).
@@ -54,8 +55,8 @@ class Score:
 def generator_method(model) -> Method:
     def run(images, cameras, near, far):
         # the generator as the pipeline runs it at the inputs' size (with its depth sweep)
-        out, _ = model.generate(images, cameras, near, far, height=0)
-        return out.gaussians(0), out.depths[0]
+        rec = model.reconstruct(images, cameras, near, far, budget="all", generator_height=0)
+        return rec.gaussians, rec.depths
 
     return run
 
@@ -68,15 +69,15 @@ def refine_method(
     options=None,
 ) -> Method:
     """The generator, pruned to ``budget`` (None: automatic), then refined against the inputs
-    for ``steps`` steps or ``seconds`` (:meth:`ProSplat.reconstruct_refined`). Returns no
+    for ``steps`` steps or ``seconds`` (:meth:`ProSplat.reconstruct`). Returns no
     depths: the refined Gaussians are already pruned and no longer pixel-aligned."""
 
     def run(images, cameras, near, far):
-        result = model.reconstruct_refined(
-            images, cameras, near, far, steps=steps, seconds=seconds, budget=budget,
-            options=options,
+        rec = model.reconstruct(
+            images, cameras, near, far, budget=budget, refine_steps=steps,
+            refine_seconds=seconds, refine_options=options,
         )  # fmt: skip
-        return result.gaussians, None
+        return rec.gaussians, None
 
     return run
 
@@ -104,15 +105,6 @@ def optimize_method(steps: int) -> Method:
         return g, None  # optimised Gaussians are no longer pixel-aligned: no dedup
 
     return run
-
-
-def pick_inputs(scene: SceneData, n: int) -> list[int]:
-    """``n`` of the scene's input views, spread by farthest-point sampling of their centres."""
-    ins = scene.input_indices
-    if n > len(ins):
-        raise ValueError(f"{scene.folder}: has {len(ins)} input views, cannot evaluate {n}")
-    centers = torch.stack([scene.cameras[i].center for i in ins])
-    return sorted(ins[k] for k in farthest_point_sampling(centers, n))
 
 
 @dataclass
@@ -145,14 +137,6 @@ def scene_at(scene: SceneData, views: int, size: int) -> ResizedScene:
     images, cams = resize_views(scene.images, scene.cameras, size)
     near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
     return ResizedScene(images, cams, idx, near, far)
-
-
-def abs_rel(pred: Tensor, gt: Tensor, alpha: Tensor) -> float:
-    """Mean |pred − gt| / gt over pixels with Blender depth and a drawn surface (alpha > 0.5)."""
-    valid = (gt > 0) & (alpha > 0.5)
-    if not valid.any():
-        return float("nan")
-    return float(((pred[valid] - gt[valid]).abs() / gt[valid]).mean())
 
 
 def score_view(
@@ -371,8 +355,8 @@ def write_scores(rows: list[Score], out: Path) -> int:
     table = markdown_table(summarise(rows))
     print(table)
     out = fresh_folder(out, overwrite=False)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
-    (out / "summary.md").write_text(table + "\n")
+    with staged_folder(out) as partial:  # moved to ``out`` only when complete
+        (partial / "scores.json").write_text(json.dumps([asdict(r) for r in rows], indent=1))
+        (partial / "summary.md").write_text(table + "\n")
     print(f"wrote {out / 'summary.md'} and scores.json")
     return 0

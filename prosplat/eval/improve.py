@@ -15,8 +15,9 @@ from dataclasses import dataclass
 
 import torch
 
+from prosplat.data.rigs import pick_inputs
 from prosplat.data.scene import SceneData
-from prosplat.eval.generator import Score, pick_inputs, reference_scores, score_view
+from prosplat.eval.generator import Score, reference_scores, score_view
 from prosplat.pipeline.enhance import render_view
 
 
@@ -54,7 +55,7 @@ def evaluate_rows(
             key = id(row.generator)
             if key not in cache:
                 t0 = time.perf_counter()
-                g = row.generator.reconstruct(images, cams, near, far)
+                g = row.generator.reconstruct(images, cams, near, far, budget="all").gaussians
                 cache[key] = (g, time.perf_counter() - t0)
             g, recon_s = cache[key]
             for t in scene.target_indices:

@@ -40,6 +40,7 @@ import torch
 from torch import Tensor
 
 from prosplat.core.camera import Camera
+from prosplat.core.paths import staged_folder
 from prosplat.eval.generator import Score, markdown_table, score_view, summarise
 from prosplat.geometry.budget import budget_arg
 from prosplat.pipeline.enhance import OTHER_VIEWS_OPACITY
@@ -123,13 +124,13 @@ def score_cases(
         images, cams = case.images, list(case.cameras)
         n = len(cams)
         t0 = time.perf_counter()
-        pruned = model.reconstruct_pruned(images, cams, case.near, case.far, budget=budget)
-        recons = [("generator", "enhanced", pruned.gaussians, time.perf_counter() - t0)]
+        rec = model.reconstruct(images, cams, case.near, case.far, budget=budget)
+        recons = [("generator", "enhanced", rec.gaussians, time.perf_counter() - t0)]
         if reconstruct_kwargs:
             t0 = time.perf_counter()
             g = model.reconstruct(
                 images, cams, case.near, case.far, budget=budget, **reconstruct_kwargs
-            )  # the same budget as the generator's
+            ).gaussians  # the same budget as the generator's
             recons.append(("refined", "refined enhanced", g.detach(), time.perf_counter() - t0))
         for gt, cam in zip(case.target_images, case.target_cameras, strict=True):
             t1 = time.perf_counter()
@@ -214,13 +215,15 @@ def input_sets(posed, inputs: list[int], count: int, fixed: bool = False) -> lis
     if count > 1 and fixed:
         raise ValueError("--input-sets picks its own inputs; drop --inputs (or --input-sets)")
     sets = [list(inputs)]  # as picked (an --inputs order is kept)
-    n = len(posed.views)
-    centres = torch.stack([v.camera.center.double() for v in posed.views])
+    # among distinct camera poses only, as pick_views chooses: coincident cameras are one view
+    distinct = [i for i, first in enumerate(posed.first_of_pose()) if first == i]
+    n = len(distinct)
+    centres = torch.stack([posed.views[i].camera.center.double() for i in distinct])
     for k in range(1, count * 4):  # more starts than asked, in case some repeat
         if len(sets) == count:
             break
         first = (k * n) // count if k < count else (k * n) // (count * 4) % n
-        chosen = sorted(farthest_point_sampling(centres, len(inputs), first=first))
+        chosen = sorted(distinct[i] for i in farthest_point_sampling(centres, len(inputs), first))
         if all(chosen != sorted(s) for s in sets):
             sets.append(chosen)
     return sets
@@ -279,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
         prepare,
         refine_kwargs,
         render_selection,
+        repeats_note,
     )
     from prosplat.core.image_io import write_image
     from prosplat.pipeline.posed_views import load_posed_set, load_views
@@ -292,6 +296,8 @@ def run(args: argparse.Namespace) -> int:
             target_set = load_posed_set(args.target_set, None, skip_missing=args.skip_missing)
             if target_set.missing:
                 print(missing_note(target_set))
+            if target_set.repeats:
+                print(repeats_note(target_set))
         sets = input_sets(posed, inputs, args.input_sets, fixed=bool(args.inputs))
         model = load_model(args)
         kwargs = refine_kwargs(args.refine_steps, args.refine_seconds)
@@ -317,13 +323,14 @@ def run(args: argparse.Namespace) -> int:
         rows = score_cases(model, cases, budget=budget, background=background,
                            reconstruct_kwargs=kwargs, sheet=sheet,
                            other_views_opacity=args.other_views_opacity)  # fmt: skip
-        table = write_results(rows, out, args.overwrite)
-        if len(sets) > 1:
-            per_set = per_set_table(rows)
-            with open(out / "summary.md", "a") as fh:
-                fh.write("\n" + "\n".join(lines) + "\n\n" + per_set + "\n")
-            table += "\n\n" + per_set
-        write_image(out / "views.png", contact_sheet(sheet), overwrite=args.overwrite)
+        with staged_folder(out) as partial:  # moved to --out only when complete
+            table = write_results(rows, partial, args.overwrite)
+            if len(sets) > 1:
+                per_set = per_set_table(rows)
+                with open(partial / "summary.md", "a") as fh:
+                    fh.write("\n" + "\n".join(lines) + "\n\n" + per_set + "\n")
+                table += "\n\n" + per_set
+            write_image(partial / "views.png", contact_sheet(sheet), overwrite=args.overwrite)
     except (ValueError, FileNotFoundError, FileExistsError) as e:
         print(f"prosplat eval posed: {' '.join(str(e).split())}", file=sys.stderr)
         return 2

@@ -66,3 +66,20 @@ def pixel_gaussians(
     colors = image.to(device=device, dtype=dtype).permute(1, 2, 0)[ok].clamp(0, 1)  # [N,3]
     opacities = torch.full_like(z, opacity)  # [N]
     return Gaussians.from_colors(means, colors, scales, opacities, sh_degree=sh_degree)
+
+
+def slide_gaussians(
+    gaussians: Gaussians, view_index: Tensor, cameras: list[Camera], factor: float | Tensor
+) -> Gaussians:
+    """``gaussians`` (``view_index [N]``: the input view that predicted each) slid along their
+    rays to ``factor`` x their depth: means scaled about their own camera's centre, scales
+    by the same factor, so each still covers its footprint in its own view. ``factor`` may be
+    a one-element tensor that needs a gradient (refinement fits it: ``RefineOptions
+    .ray_scale_lr``); a float 1 returns ``gaussians`` as they are."""
+    if not isinstance(factor, Tensor) and factor == 1.0:
+        return gaussians
+    centres = torch.stack([c.center for c in cameras]).to(gaussians.means)  # [V,3]
+    c = centres[view_index.to(centres.device)]  # [N,3]
+    means = c + factor * (gaussians.means - c)
+    g = gaussians
+    return Gaussians(means, g.quats, g.scales * factor, g.opacities, g.sh, g.views)

@@ -12,6 +12,11 @@ failing, reconstruction picks the views itself, in one of two ways:
 * ``nearest``: the views nearest one camera (the artist's active camera), by position and
   direction: the best texture for that one view, at the cost of coverage elsewhere.
 
+Coincident cameras (the same pose within :data:`COINCIDENT_TOLERANCE`: a frame listed twice,
+poses copied from one frame, a static camera filming a moving object) count as one view:
+a second image from the same pose adds no baseline, so it is never chosen beside the first
+(:func:`distinct_views`), and fewer than 2 distinct poses is refused with a clear message.
+
 Everything here is plain tensors on camera centres and forward vectors (float64), so it is
 cheap to test against brute force; :func:`choose_frames` is the worker's entry point, on the
 camera dicts of :mod:`prosplat.convert.posed`.
@@ -29,12 +34,15 @@ from torch import Tensor
 from prosplat.core.camera import Camera
 
 __all__ = [
+    "COINCIDENT_TOLERANCE",
     "MODES",
     "ViewChoice",
     "axes_focus",
     "choose_frames",
     "choose_views",
+    "distinct_views",
     "farthest_views",
+    "first_of_pose",
     "nearest_views",
     "sees_point",
 ]
@@ -43,6 +51,14 @@ MODES = ("spread", "nearest")
 #: below this (relative to the largest), the axes' normal matrix is singular: the optical
 #: axes are (nearly) parallel and meet nowhere, so there is no region of interest to find
 _FOCUS_CONDITION = 1e-3
+#: two cameras coincide when their centres are closer than this times the rig's size (the
+#: largest distance of a centre from the centres' mean) and their viewing directions closer
+#: than this many radians (about 0.006 degrees): a step far below any useful baseline, yet
+#: far above float rounding of a pose written twice
+COINCIDENT_TOLERANCE = 1e-4
+#: ... plus this times the centres' distance from the origin: float32 cameras cannot tell
+#: centres apart below it, so a rig whose cameras all coincide up to rounding is one pose
+_ROUNDING = 1e-6
 
 
 @dataclass(frozen=True)
@@ -66,6 +82,49 @@ def _features(centers: Tensor, forwards: Tensor) -> Tensor:
     """[N,6]: centre over the rig's size, then the unit forward vector."""
     f = forwards / forwards.norm(dim=1, keepdim=True).clamp_min(1e-12)
     return torch.cat([centers / _scale(centers), f], dim=1)
+
+
+def first_of_pose(
+    centers: Tensor, forwards: Tensor, tolerance: float = COINCIDENT_TOLERANCE
+) -> list[int]:
+    """For each view, the first view (in the given order) whose camera it coincides with:
+    itself when no earlier one does.
+
+    Two cameras coincide when their centres are within ``tolerance`` times the rig's size
+    (plus float32 rounding of the centres) and their unit viewing directions within
+    ``tolerance`` (the chord, about the angle in radians). Roll is ignored: the same centre
+    looking the same way sees the same scene. Each view joins the first kept view it
+    coincides with, so the grouping depends on nothing but the order.
+
+    Args:
+        centers, forwards: [N,3] camera centres and viewing directions.
+    """
+    c, f = centers.double(), forwards.double()
+    f = f / f.norm(dim=1, keepdim=True).clamp_min(1e-12)
+    if len(c) == 0:
+        return []
+    size = float((c - c.mean(0)).norm(dim=1).max())
+    reach = tolerance * size + _ROUNDING * (1.0 + float(c.norm(dim=1).max()))
+    kept: list[int] = []
+    out: list[int] = []
+    for i in range(len(c)):
+        if kept:
+            k = torch.tensor(kept)
+            near = ((c[k] - c[i]).norm(dim=1) <= reach) & ((f[k] - f[i]).norm(dim=1) <= tolerance)
+            if bool(near.any()):
+                out.append(kept[int(near.nonzero()[0, 0])])
+                continue
+        kept.append(i)
+        out.append(i)
+    return out
+
+
+def distinct_views(
+    centers: Tensor, forwards: Tensor, tolerance: float = COINCIDENT_TOLERANCE
+) -> list[int]:
+    """The first view of each group of coincident cameras (:func:`first_of_pose`), ascending:
+    all N views when no two coincide."""
+    return [i for i, r in enumerate(first_of_pose(centers, forwards, tolerance)) if r == i]
 
 
 def axes_focus(centers: Tensor, forwards: Tensor) -> Tensor | None:
@@ -132,7 +191,8 @@ def choose_views(
     sees: Tensor | None = None,
     target: tuple[Tensor, Tensor] | None = None,
 ) -> tuple[list[int], str]:
-    """At most ``max_views`` of N views: all of them when N ≤ ``max_views``, else by ``mode``.
+    """At most ``max_views`` of N views: all of them when N ≤ ``max_views``, else by ``mode``;
+    coincident cameras (:func:`distinct_views`) count as one view, the first of them.
 
     Args:
         centers, forwards: [N,3] camera centres and viewing directions.
@@ -147,7 +207,8 @@ def choose_views(
         (indices ascending, a phrase saying how they were chosen).
 
     Raises:
-        ValueError: fewer than 2 views, an unknown mode, or ``nearest`` without a target.
+        ValueError: fewer than 2 views (or distinct poses), an unknown mode, or ``nearest``
+            without a target.
     """
     n = len(centers)
     if n < 2:
@@ -156,6 +217,17 @@ def choose_views(
         raise ValueError(f"unknown view choice {mode!r}; use one of {', '.join(MODES)}")
     if mode == "nearest" and target is None:
         raise ValueError("choosing the views nearest the active camera needs an active camera")
+    keep = distinct_views(centers, forwards)
+    if len(keep) < 2:
+        raise ValueError(
+            f"the {n} input views all have the same camera pose; reconstruction needs at least "
+            "2 views from different positions or directions: move or turn their cameras apart"
+        )
+    if len(keep) < n:
+        sub = None if sees is None else sees[keep]
+        picked, why = choose_views(centers[keep], forwards[keep], max_views, mode, sub, target)
+        repeats = f"{n - len(keep)} of the {n} views repeat another's camera pose, left out"
+        return [keep[i] for i in picked], f"{why} ({repeats})"
     if n <= max_views:
         return list(range(n)), f"all {n} input views (the generator takes up to {max_views})"
     if mode == "nearest":

@@ -37,15 +37,15 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.core.camera import Camera
-from prosplat.core.gaussians import Gaussians
 from prosplat.generator.output import GeneratorOutput
 from prosplat.geometry.matching import winner_take_all, zncc_cost
+from prosplat.geometry.pixel_gaussians import slide_gaussians
+from prosplat.pipeline.refine import photometric_loss
 
 __all__ = [
     "DepthSweepOptions",
     "scale_search",
     "slide_along_rays",
-    "slide_gaussians",
     "snap_output",
     "sweep_depths",
 ]
@@ -302,7 +302,6 @@ def scale_search(
         the winning factor and ``[(factor, loss), ...]`` for every candidate.
     """
     from prosplat.data.scene import resize_views
-    from prosplat.pipeline.refine import photometric_loss
     from prosplat.render import render
 
     options = DepthSweepOptions() if options is None else options
@@ -347,23 +346,6 @@ def scale_search(
         scored.append((f, loss / v))
     best = min(scored, key=lambda fl: (fl[1], abs(math.log(fl[0]))))[0]
     return best, scored
-
-
-def slide_gaussians(
-    gaussians: Gaussians, view_index: Tensor, cameras: list[Camera], factor: float | Tensor
-) -> Gaussians:
-    """``gaussians`` (``view_index [N]``: the input view that predicted each) slid along their
-    rays to ``factor`` x their depth: means scaled about their own camera's centre, scales
-    by the same factor, so each still covers its footprint in its own view. ``factor`` may be
-    a one-element tensor that needs a gradient (refinement fits it: ``RefineOptions
-    .ray_scale_lr``); a float 1 returns ``gaussians`` as they are."""
-    if not isinstance(factor, Tensor) and factor == 1.0:
-        return gaussians
-    centres = torch.stack([c.center for c in cameras]).to(gaussians.means)  # [V,3]
-    c = centres[view_index.to(centres.device)]  # [N,3]
-    means = c + factor * (gaussians.means - c)
-    g = gaussians
-    return Gaussians(means, g.quats, g.scales * factor, g.opacities, g.sh, g.views)
 
 
 def slide_along_rays(

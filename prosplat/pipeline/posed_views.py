@@ -2,8 +2,10 @@
 
 :func:`load_posed_set` reads a ``transforms.json`` (nerfstudio, instant-ngp, NeRF synthetic;
 lens distortion allowed) or a COLMAP model (text or binary, with its sparse points) and finds
-each frame's image. :func:`pick_views` chooses the inputs (farthest-point sampling of camera
-centres, or names / indices). :func:`load_views` turns frames into what the generator eats:
+each frame's image (a frame that lists an image already listed is left out: one image is one
+view). :func:`pick_views` chooses the inputs (farthest-point sampling of camera centres, or
+names / indices; coincident cameras count as one view, see
+:func:`prosplat.geometry.view_choice.distinct_views`). :func:`load_views` turns frames into what the generator eats:
 each image is read, RGBA composited over a background, undistorted onto a pinhole camera
 (:mod:`prosplat.convert.distortion`) and resized to the model resolution with its intrinsics
 scaled to match. :func:`near_far_from_points` gives the depth range from COLMAP's points.
@@ -12,6 +14,7 @@ scaled to match. :func:`near_far_from_points` gives the depth range from COLMAP'
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +25,7 @@ from torch import Tensor
 
 from prosplat.convert.distortion import Distortion, undistort_image, undistorted_camera
 from prosplat.core.camera import Camera
+from prosplat.geometry.view_choice import first_of_pose
 
 __all__ = [
     "FAR_MARGIN",
@@ -77,6 +81,9 @@ class PosedSet:
     bounds: dict[str | None, tuple[float, float]] = field(default_factory=dict)
     #: frames left out because their image file is missing (``skip_missing=True``)
     missing: list[str] = field(default_factory=list)
+    #: image paths as the file gives them, one per frame left out because an earlier frame
+    #: lists the same image (a frame listed twice is one view, not two)
+    repeats: list[str] = field(default_factory=list)
 
     def file_near_far(self, indices: Sequence[int]) -> tuple[float, float] | None:
         """The file's depth range for these views (per-frame bounds, else the top-level
@@ -89,6 +96,13 @@ class PosedSet:
     @property
     def names(self) -> list[str]:
         return [v.name for v in self.views]
+
+    def first_of_pose(self) -> list[int]:
+        """For each frame, the first frame with the same camera pose (itself if none earlier):
+        :func:`prosplat.geometry.view_choice.first_of_pose` on the frames' cameras."""
+        centers = torch.stack([v.camera.center.double() for v in self.views])
+        forwards = torch.stack([v.camera.forward.double() for v in self.views])
+        return first_of_pose(centers, forwards)
 
 
 def _colmap_folder(path: Path) -> Path | None:
@@ -117,6 +131,18 @@ def _bounds(d: dict) -> tuple[float, float] | None:
     return (float(near), float(far)) if ok and 0 < near < far < float("inf") else None
 
 
+def _drop_repeats(items: list, key) -> tuple[list, list]:
+    """``items`` without those whose image ``key(item)`` an earlier item already has, and the
+    items left out, in order."""
+    seen: set = set()
+    kept, dropped = [], []
+    for item in items:
+        k = key(item)
+        (dropped if k in seen else kept).append(item)
+        seen.add(k)
+    return kept, dropped
+
+
 def _missing_error(missing: list[tuple[str, str]], total: int, where: str) -> FileNotFoundError:
     """The error for frames without an image: the first one, how many, and the ways out."""
     image, name = missing[0]
@@ -143,6 +169,9 @@ def load_posed_set(
             default, because a wrong ``--images`` folder or a typo would otherwise silently
             shrink the set. With every image missing it still raises.
 
+    A frame whose image an earlier frame already lists (the same file, however the path is
+    spelled) is left out and named in :attr:`PosedSet.repeats`: one image is one view.
+
     Raises:
         FileNotFoundError: nothing readable at ``path``, or a frame's image is missing (every
             frame's, with ``skip_missing``).
@@ -162,9 +191,11 @@ def load_posed_set(
     if model_dir is not None:
         model = read_colmap_model(model_dir)
         dirs = _colmap_image_dirs(model_dir, images_dir)
-        names = _unique_names([im.name for im in model.images])
+        images, repeated = _drop_repeats(model.images, lambda im: im.name)
+        repeats = [im.name for im in repeated]
+        names = _unique_names([im.name for im in images])
         views, missing = [], []
-        for im, name in zip(model.images, names, strict=True):
+        for im, name in zip(images, names, strict=True):
             found = next((d / im.name for d in dirs if (d / im.name).is_file()), None)
             if found is None:
                 missing.append((im.name, name))
@@ -176,7 +207,7 @@ def load_posed_set(
         left_out = {name for _, name in missing}
         observed = {
             n: model.observed[im.name]
-            for im, n in zip(model.images, names, strict=True)
+            for im, n in zip(images, names, strict=True)
             if n not in left_out
         }
         kind = "colmap binary" if model.binary else "colmap text"
@@ -190,9 +221,15 @@ def load_posed_set(
             )
         tf = read_transforms(json_path, allow_distortion=True)
         root = images_dir if images_dir is not None else json_path.parent
-        names = _unique_names([f.file_path for f in tf.frames])
+
+        def image_of(f) -> str:  # the same file however the path is spelled
+            return str(_find_image(root, f.file_path) or os.path.normpath(root / f.file_path))
+
+        frames, repeated = _drop_repeats(tf.frames, image_of)
+        repeats = [f.file_path for f in repeated]
+        names = _unique_names([f.file_path for f in frames])
         views, missing = [], []
-        for f, name in zip(tf.frames, names, strict=True):
+        for f, name in zip(frames, names, strict=True):
             found = _find_image(root, f.file_path)
             if found is None:
                 missing.append((str(root / f.file_path), name))
@@ -203,29 +240,33 @@ def load_posed_set(
         top = json.loads(json_path.read_text())
         synthetic = "camera_angle_x" in top and "fl_x" not in top
         bounds = {None: _bounds(tf.meta)} if _bounds(tf.meta) else {}
-        for f, name in zip(tf.frames, names, strict=True):
+        for f, name in zip(frames, names, strict=True):
             if _bounds(f.extra):
                 bounds[name] = _bounds(f.extra)
         posed = PosedSet(views, json_path, "transforms", nerf_synthetic=synthetic, bounds=bounds)
     if not posed.views:
         raise ValueError(f"{path} has no frames (no registered images); nothing to reconstruct")
     posed.missing = [name for _, name in missing]
+    posed.repeats = repeats
     return posed
 
 
 def pick_views(posed: PosedSet, spec: Sequence[str] | None = None, count: int = 4) -> list[int]:
     """Indices of the input views: ``spec`` names or indices (in the file's order), or ``count``
-    views by farthest-point sampling of the camera centres (from the first frame).
+    views by farthest-point sampling of the camera centres (from the first frame). Frames
+    whose cameras coincide (:func:`~prosplat.geometry.view_choice.first_of_pose`) count as
+    one view, the first of them: a second image from one pose adds no baseline.
 
     Raises:
-        ValueError: an unknown name or index, duplicates, or a count outside 2-6 (the
-            generator takes 2 to :data:`MAX_INPUTS` views) or above the frames available.
+        ValueError: an unknown name or index, a frame named twice or two named frames with one
+            pose, a count outside 2-6 (the generator takes 2 to :data:`MAX_INPUTS` views) or
+            above the distinct poses available, fewer than 2 distinct poses.
     """
     from prosplat.data.rigs import farthest_point_sampling
 
     n = len(posed.views)
+    names = posed.names
     if spec:
-        names = posed.names
         out = []
         for s in spec:
             if s in names:
@@ -242,12 +283,52 @@ def pick_views(posed: PosedSet, spec: Sequence[str] | None = None, count: int = 
         count = len(out)
     if not 2 <= count <= MAX_INPUTS:
         raise ValueError(f"the generator takes 2-{MAX_INPUTS} input views, got {count}")
-    if count > n:
-        raise ValueError(f"{posed.source} has {n} frames; cannot pick {count} input views")
+    first = posed.first_of_pose()
+    distinct = [i for i in range(n) if first[i] == i]
+    if len(distinct) < 2:
+        raise ValueError(_too_few_poses(posed, len(distinct)))
     if spec:
+        for k, i in enumerate(out):
+            same = [j for j in out[:k] if first[j] == first[i]]
+            if same:
+                raise ValueError(
+                    f"--inputs {names[same[0]]} and {names[i]} have the same camera pose; "
+                    "choose views taken from different positions or directions"
+                )
         return out
-    centers = torch.stack([v.camera.center.double() for v in posed.views])
-    return sorted(farthest_point_sampling(centers, count))
+    if count > len(distinct):
+        if len(distinct) == n:
+            raise ValueError(f"{posed.source} has {n} frames; cannot pick {count} input views")
+        raise ValueError(
+            f"{posed.source} has {n} frames but only {len(distinct)} distinct camera poses "
+            f"({n - len(distinct)} repeat the pose of an earlier frame); cannot pick {count} "
+            f"input views: pick {len(distinct)} or fewer"
+        )
+    centers = torch.stack([posed.views[i].camera.center.double() for i in distinct])
+    picked = farthest_point_sampling(centers, count)
+    return sorted(distinct[k] for k in picked)
+
+
+def _too_few_poses(posed: PosedSet, distinct: int) -> str:
+    """Why ``posed`` cannot be reconstructed (fewer than 2 distinct camera poses), and what to
+    do: one sentence for the command line."""
+    n = len(posed.views)
+    first = posed.repeats[0] if posed.repeats else ""
+    listed = f"{first} {1 + posed.repeats.count(first)} times" if first else ""
+    if n > distinct:
+        also = f"; {len(posed.repeats)} more list an image again ({listed})" if first else ""
+        what = (
+            f"has {n} frames but they all have the same camera pose{also}; reconstruction "
+            "needs at least 2 views from different positions or directions: give each frame "
+            "its own camera pose (were the poses copied from one frame?)"
+        )
+    else:
+        has = f"lists only {n} distinct image ({listed})" if first else f"has only {n} frame"
+        what = (
+            f"{has}; reconstruction needs at least 2 input views from different camera poses: "
+            "list the images of more views"
+        )
+    return f"{posed.source} {what}"
 
 
 def parse_background(text: str) -> Tensor:

@@ -34,6 +34,7 @@ from torch import Tensor
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
 from prosplat.geometry.budget import check_view_index
+from prosplat.geometry.pixel_gaussians import slide_gaussians
 from prosplat.metrics.image import SSIM_WINDOW, ssim_map
 from prosplat.render import render
 from prosplat.render.projection import DILATION, FOV_CLAMP, MIN_ALPHA, NEAR_PLANE
@@ -220,9 +221,8 @@ class RefineStats:
     ``loss_history``: the photometric loss of every step; ``cancelled``: the cancel hook
     stopped the loop; ``n_gaussians`` (unchanged by refinement), ``sh_degree`` fitted,
     ``scene_extent`` (scales the position learning rate), ``depth_factor`` (the scene-wide
-    factor fitted, :attr:`RefineOptions.ray_scale_lr`; 1 when off).
-    :meth:`prosplat.ProSplat.reconstruct_refined` adds ``generator_s``, ``prune_s`` (seconds)
-    and ``pruned_from`` (the generator's count before the budget).
+    factor fitted, :attr:`RefineOptions.ray_scale_lr`; 1 when off). A reconstruction's
+    generator and budget (seconds, counts) are in :class:`prosplat.Reconstruction`.
     """
 
     steps: int
@@ -235,10 +235,6 @@ class RefineStats:
     n_gaussians: int
     sh_degree: int
     scene_extent: float
-    # filled in by ProSplat.reconstruct_refined: generator and pruning seconds, count before
-    generator_s: float | None = None
-    prune_s: float | None = None
-    pruned_from: int | None = None
     # the scene-wide depth factor fitted (RefineOptions.ray_scale_lr; 1: none)
     depth_factor: float = 1.0
 
@@ -422,7 +418,7 @@ def check_images(images: Tensor, cameras: Sequence[Camera], what: str = "refine"
 def check_budget(steps, seconds) -> None:
     """The library's form of a refinement budget: exactly one of ``steps`` (an integer >= 0)
     and ``seconds`` (a finite number > 0), the other None. Callers that run the generator
-    first (:meth:`prosplat.ProSplat.reconstruct_refined`, the add-on's worker) check it
+    first (:meth:`prosplat.ProSplat.reconstruct`, the add-on's worker) check it
     before that work, so a bad budget costs nothing."""
     if (steps is None) == (seconds is None):
         which = "not both" if steps is not None else "got neither"
@@ -488,7 +484,7 @@ def refine(
         cancel: called before every step; True stops the loop and returns what was fitted.
         depths: [V,H,W] the generator's depth per input view (for the depth term; 0 = none).
         view_index: [N] the input view that predicted each Gaussian (for the cross-view term;
-            :attr:`prosplat.pipeline.model.PrunedReconstruction.view_index`).
+            :attr:`prosplat.Reconstruction.view_index`).
         options: :class:`RefineOptions` (the measured defaults).
 
     Returns:
@@ -543,9 +539,6 @@ def refine(
     if view_index is not None and options.cross_view_weight > 0:
         vi = view_index.to(device)
         others = [torch.nonzero(vi != i).squeeze(1) for i in range(v)]
-    # depth_sweep imports prosplat.eval.baselines, which imports this module: import it here
-    from prosplat.pipeline.depth_sweep import slide_gaussians
-
     log_f = None  # the scene's log depth factor [1] (RefineOptions.ray_scale_lr)
     if view_index is not None and options.ray_scale_lr > 0:
         log_f = torch.zeros(1, dtype=dtype, device=device, requires_grad=True)

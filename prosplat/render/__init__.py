@@ -8,31 +8,15 @@ rasterizer semantics of DESIGN.md; the pure-torch brute-force twin that defines 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
+from prosplat.render.output import RenderOutput
 from prosplat.render.projection import ProjectedGaussians, project_gaussians
 
 __all__ = ["RenderOutput", "render", "project_gaussians", "ProjectedGaussians"]
-
-
-@dataclass
-class RenderOutput:
-    """What one render returns.
-
-    rgb [3,H,W] composited over the background; alpha [H,W] = 1 − final transmittance;
-    depth [H,W] the alpha-normalised z along the optical axis (0 where nothing was drawn);
-    visible [N] bool, Gaussians that touched the image.
-    """
-
-    rgb: Tensor
-    alpha: Tensor
-    depth: Tensor
-    visible: Tensor
 
 
 def _background(background: Tensor | None, like: Tensor) -> Tensor:

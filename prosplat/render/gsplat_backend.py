@@ -15,6 +15,7 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
+from prosplat.render.output import RenderOutput
 from prosplat.render.projection import NEAR_PLANE
 
 
@@ -57,7 +58,6 @@ def _rasterize(gaussians: Gaussians, cameras: Sequence[Camera], bg: Tensor):
 
 
 def render_gsplat(gaussians: Gaussians, camera: Camera, bg: Tensor):
-    from prosplat.render import RenderOutput
 
     rgb, alpha, depth, meta = _rasterize(gaussians, [camera], bg)
     visible = (meta["radii"][0] > 0).reshape(len(gaussians), -1).any(dim=1)

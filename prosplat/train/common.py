@@ -33,6 +33,7 @@ Step-indexed sampling
 from __future__ import annotations
 
 import json
+import math
 import os
 import random
 import warnings
@@ -58,6 +59,15 @@ def check_intervals(cfg, *names: str) -> None:
             raise ValueError(
                 f"--{name.replace('_', '-')} must be a whole number of steps >= 1, got {value}"
             )
+
+
+def lr_at(step: int, cfg) -> float:
+    """Linear warm-up, then cosine decay to 10 % of the peak; ``cfg`` is any training config
+    with ``lr``, ``warmup`` and ``steps`` (the generator's and the stage-2 ones)."""
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    t = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)
+    return cfg.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, t))))
 
 
 # ---- devices and torch.distributed ----------------------------------------------------------

@@ -19,8 +19,8 @@ from torch import Tensor
 
 from prosplat.core.checkpoints import read_checkpoint, write_checkpoint
 from prosplat.data.dataset import load_source, scene_sources, source_name
+from prosplat.data.rigs import pick_inputs
 from prosplat.data.scene import resize_views
-from prosplat.eval.generator import pick_inputs
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import reference_warp
@@ -59,7 +59,7 @@ def curate_scene(
     generator's Gaussians pruned to the automatic budget, then :func:`prosplat.pipeline.refine.refine`
     for that many steps with its default options), so stage 2 can learn refined renders.
     ``generator_height``: the generator runs at most this high, as the pipeline runs it
-    (:meth:`ProSplat.generator_views`; None: the weights' trained size, 0: the views' size).
+    (:meth:`ProSplat.reconstruct`; None: the weights' trained size, 0: the views' size).
     ``splat_scale``: the Gaussians render with their scales multiplied by it, as
     ``render_view(..., splat_scale=)`` draws them for a model trained on such renders.
     ``max_splat_radius``: each target view leaves out the Gaussians it would draw wider than
@@ -81,19 +81,20 @@ def curate_scene(
         near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
         images = scene.images[idx]
         if refine_steps:
-            pruned = model.reconstruct_pruned(
+            rec = model.reconstruct(
                 images, cams, near, far, generator_height=generator_height
             )  # as the pipeline refines
-            input_depths = pruned.depths_for(images)  # None when the generator ran smaller
+            input_depths = rec.depths_for(images)  # None when the generator ran smaller
             gaussians = refine(
-                pruned.gaussians, images, cams, steps=refine_steps, seed=seed,
+                rec.gaussians, images, cams, steps=refine_steps, seed=seed,
                 depths=input_depths,
             ).gaussians  # fmt: skip
         else:  # the generator's every pixel-aligned Gaussian, unpruned
-            full, _ = model.generate(images, cams, near, far, generator_height)
-            gaussians = full.gaussians(0)
-            same_size = full.depths.shape[-2:] == images.shape[-2:]
-            input_depths = full.depths[0] if same_size else None  # MORI needs input-size maps
+            rec = model.reconstruct(
+                images, cams, near, far, budget="all", generator_height=generator_height
+            )
+            gaussians = rec.gaussians
+            input_depths = rec.depths_for(images)  # MORI needs input-size maps
         drawn_all = gaussians.with_scale_factor(splat_scale)
         ref_depths: dict[int, Tensor] = {}  # input j -> every splat's depth there [H,W]
         for t in scene.target_indices:

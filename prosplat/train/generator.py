@@ -1,4 +1,6 @@
-"""Training the stage-1 generator on Blender-rendered scenes.
+"""Training the stage-1 generator on Blender-rendered scenes: the loop (DDP, weight average,
+resume, Ctrl-C). Its pieces live beside it: the settings in :mod:`prosplat.train.generator_config`,
+the batch reshaping in :mod:`prosplat.train.batches`, the loss in :mod:`prosplat.train.losses`.
 
 One script for the CPU, one GPU, or several. The loss renders the target views from the
 predicted Gaussians with the differentiable rasterizer: MSE + λ·LPIPS (+ optional SSIM and
@@ -46,480 +48,45 @@ view counts are functions of (seed, step), so a resumed run continues the same s
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import random
 import sys
 import time
 import warnings
-from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import torch
-import torch.nn.functional as F
-from torch import Tensor
 
-from prosplat.core.camera import Camera
-from prosplat.generator.config import MAX_ALEXNET_LAYERS
-from prosplat.render import render
-from prosplat.render.hole_fill import fill_holes
+from prosplat.train.batches import (
+    StepBatches,
+    batch_cameras,
+    model_inputs,
+    step_view,
+    to_device,
+    val_view,
+)
 from prosplat.train.common import (
     Dist,
     changed_settings,
-    check_intervals,
     claim_run_folder,
-    draw_count,
     load_checkpoint,
-    pick_device,
+    lr_at,
     save_checkpoint,
     setup_distributed,
-    step_indices,
     steps_per_epoch,
     truncate_log,
 )
 from prosplat.train.ema import WeightAverage
+from prosplat.train.generator_config import TrainConfig
+from prosplat.train.losses import render_loss, render_views
 
 if TYPE_CHECKING:
     from prosplat.data import SceneDataset
 
-__all__ = [
-    "TrainConfig",
-    "batch_cameras",
-    "input_counts",
-    "lr_at",
-    "parse_inputs",
-    "pick_device",
-    "render_loss",
-    "train",
-    "validate",
-]
-
-
-def input_counts(value: int | str | Sequence[int]) -> tuple[int, ...]:
-    """The set of input-view counts a run trains on, sorted and de-duplicated.
-
-    Accepts an int (``2``), a comma-separated string (``"2,4,6"``) or a sequence of ints.
-
-    Raises:
-        ValueError: a count outside 2-6 (the generator's range) or text that is not integers.
-    """
-    if isinstance(value, str):
-        try:
-            items = [int(v) for v in value.replace(" ", "").split(",") if v]
-        except ValueError:
-            raise ValueError(
-                f"inputs must be a count 2-6 or a comma-separated set like 2,4,6, got {value!r}"
-            ) from None
-    elif isinstance(value, int):
-        items = [value]
-    else:
-        items = [int(v) for v in value]
-    if not items or any(not 2 <= n <= 6 for n in items):
-        raise ValueError(f"input-view counts must each be 2-6, got {value!r}")
-    return tuple(sorted(set(items)))
-
-
-def parse_inputs(text: str) -> int | tuple[int, ...]:
-    """argparse type for ``--inputs``: ``"4"`` → 4, ``"2,4,6"`` → (2, 4, 6)."""
-    try:
-        counts = input_counts(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-    return counts[0] if len(counts) == 1 else counts
-
-
-def train_sizes(text: str) -> tuple[int, ...]:
-    """``"64,128"`` -> (64, 128); each a multiple of 32 (the generator's stride)."""
-    try:
-        sizes = tuple(sorted({int(v) for v in str(text).replace(" ", "").split(",") if v}))
-    except ValueError:
-        raise ValueError(
-            f"sizes must be comma-separated integers like 64,128, got {text!r}"
-        ) from None
-    if any(v < 32 or v % 32 for v in sizes):
-        raise ValueError(f"training sizes must be multiples of 32, got {text!r}")
-    return sizes
-
-
-def one_surface(depths: Tensor, k: int) -> Tensor:
-    """depths [N,1,H,W] (0 = no surface) -> [N,1,H/k,W/k]: True where every ray of the k x k
-    cell hit a surface and their depths lie within 5 % of each other, i.e. the cell sees one
-    surface and its depth means something (not a blend with the sky or across an edge)."""
-    hi = F.max_pool2d(depths, k)
-    lo = -F.max_pool2d(-depths, k)  # 0 where any ray of the cell hit nothing
-    return (lo > 0) & (hi <= lo * 1.05)
-
-
-def resize_batch(
-    batch: dict[str, Tensor], size: int, target_size: int | None = None
-) -> dict[str, Tensor]:
-    """Downsample a square batch's images, depths and intrinsics to ``size`` px: the inputs to
-    ``size``, the targets to ``target_size`` (default ``size``).
-
-    Images: antialiased bilinear (what a lower-resolution camera integrates). Depths: the
-    bilinear value at the new pixel centre where the 2x2 (or larger) footprint agrees within
-    5 %, else 0 (no supervision across depth edges or where part of it hit nothing, where a
-    blend is no surface at all).
-    """
-    from prosplat.generator.cost_volume import scale_intrinsics
-
-    h, w = batch["input_images"].shape[-2:]
-    sizes = {"input": size, "target": size if target_size is None else target_size}
-    if max(sizes.values()) > min(h, w):
-        raise ValueError(
-            f"cannot train at {max(sizes.values())} px on {w}x{h} data: render larger scenes"
-        )
-    out = dict(batch)
-    for group, s in sizes.items():
-        if (h, w) == (s, s):
-            continue
-        x = batch[f"{group}_images"]  # [B,M,3,H,W]
-        y = F.interpolate(
-            x.flatten(0, 1), size=(s, s), mode="bilinear", antialias=True, align_corners=False
-        )
-        out[f"{group}_images"] = y.clamp(0, 1).view(*x.shape[:2], 3, s, s)
-        out[f"{group}_K"] = scale_intrinsics(batch[f"{group}_K"], s / w, s / h)
-        if f"{group}_depths" not in batch:
-            continue
-        d = batch[f"{group}_depths"].flatten(0, 1)[:, None]  # [BM,1,H,W]
-        mid = F.interpolate(d, size=(s, s), mode="bilinear", align_corners=False)
-        ok = one_surface(d, h // s)  # a blend with the sky or across an edge is no depth
-        shape = (*batch[f"{group}_depths"].shape[:2], s, s)
-        out[f"{group}_depths"] = torch.where(ok, mid, torch.zeros_like(mid))[:, 0].view(shape)
-    return out
-
-
-def crop_batch(
-    batch: dict[str, Tensor], size: int | tuple[int, int], top: int, left: int
-) -> dict[str, Tensor]:
-    """The ``size`` window (px, or (height, width)) at (top, left) of every image and depth of
-    a batch, the intrinsics shifted to match: the same scene seen by narrower cameras, at the
-    data's own pixel scale (no resampling, so depth stays exact). A cheap augmentation that
-    makes one rendered scene serve several framings."""
-    h, w = batch["input_images"].shape[-2:]
-    ch, cw = (size, size) if isinstance(size, int) else size
-    if not (0 <= top <= h - ch and 0 <= left <= w - cw):
-        raise ValueError(f"crop {cw}x{ch} at ({top}, {left}) does not fit {w}x{h} images")
-    out = dict(batch)
-    for key in ("input_images", "target_images", "input_depths", "target_depths"):
-        if key in batch:
-            out[key] = batch[key][..., top : top + ch, left : left + cw]
-    for key in ("input_K", "target_K"):
-        if key not in batch:
-            continue
-        K = batch[key].clone()
-        K[..., 0, 2] -= left
-        K[..., 1, 2] -= top
-        out[key] = K
-    return out
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Everything a run depends on; saved beside its checkpoints as ``train_config.json``."""
-
-    data: str
-    out: str
-    config: str = "tiny"  # generator preset: "tiny" | "base"
-    val: str | None = None
-    steps: int = 20_000
-    # stop (with a checkpoint) after this step, the schedule still following ``steps``: a long
-    # run taken in bounded parts, each part the same steps a single run would take
-    stop_at: int | None = None
-    batch: int = 1  # scenes per step per process
-    inputs: int | str | tuple[int, ...] = 2  # a count, or a set drawn from per step
-    targets: int = 2
-    lr: float = 2e-4
-    weight_decay: float = 0.01
-    lpips_weight: float = 0.05
-    ssim_weight: float = 0.0
-    depth_weight: float = 0.0  # rendered vs Blender depth at the targets (see depth_loss)
-    # the generator's per-input-view depth maps vs Blender's: direct supervision of the depth
-    # head (DepthSplat gets it from a pretrained depth model; see depth_loss)
-    input_depth_weight: float = 0.0
-    # cross-entropy of the depth head's distribution (its 1/4-resolution logits) against
-    # Blender's input depth as a two-hot over the bracketing candidates (see depth_ce): the L1
-    # terms above reach the head through the softmax's expectation, whose gradient on a
-    # candidate is proportional to that candidate's probability, so a confident wrong peak
-    # (an object flattened into the floor behind it) gets almost none; this term pushes the
-    # true candidate up whatever mass it has. 0: off
-    input_depth_ce_weight: float = 0.0
-    # how both depth terms compare depths: "inverse" (L1 of 1/z, in scene units, so scenes of
-    # small depth weigh most) or "log" (L1 of log z: the relative error AbsRel scores, the same
-    # for a scene at any scale)
-    depth_loss: str = "inverse"
-    # the input cameras re-rendered from ALL views' Gaussians, scored like targets (colour, and
-    # depth with depth_weight): makes the views' Gaussians agree where they see one surface
-    input_render_weight: float = 0.0
-    # score every render with its holes filled by pull-push (prosplat.render.hole_fill), as the
-    # product shows a raw render and stage 2 sees it: a black hole costs more than any surface
-    # gains (BENCHMARKS "Holes"), which pushes Gaussians out over what no input saw; filled,
-    # a hole costs what the continuation of its surroundings misses
-    fill_holes: bool = False
-    # image sizes drawn per step (e.g. "64,128"; empty = the data's size): one set of weights
-    # for every size; data is downsampled, never upsampled
-    sizes: str = ""
-    # targets at this multiple of the step's size (at most the data's): the pipeline runs the
-    # generator at its trained size and renders its Gaussians for cameras with more pixels,
-    # so Gaussians trained only at the input size leave pinholes there
-    target_scale: int = 1
-    any_view: bool = False  # draw inputs/targets from all of a scene's views (SceneDataset)
-    # at a size below the data's, this share of steps crops a window instead of downsampling
-    crop_prob: float = 0.0
-    # at the data's size, this share of steps crops a window of another shape (see
-    # frame_window): other aspect ratios and narrower fields of view than the square renders
-    frame_prob: float = 0.0
-    cache_scenes: int = 32  # decoded scenes kept in memory (raise it where memory allows)
-    # start from these weights (a fresh optimiser, step 0): prosplat's .safetensors trains
-    # the whole generator; a DepthSplat .pth fine-tunes its Gaussian heads only, the rest
-    # frozen (prosplat.train.depthsplat_heads; ``config`` is then unused)
-    init: str | None = None
-    # with a prosplat ``init`` without fine matching: add a 1/2-resolution cost volume of this
-    # many channels, entering through zero weights so step 0 is the init's generator
-    # (prosplat.generator.grow); 0 = the network of ``config``
-    grow_fine_matching: int = 0
-    # with a prosplat ``init`` without them: add frozen AlexNet relu1..relu<n> features to the
-    # monocular branch through zero weights (prosplat.generator.grow.grow_alexnet); 0 = off
-    grow_alexnet: int = 0
-    # with a prosplat ``init`` without it: add the images' own ZNCC plane sweep with this odd
-    # window to the depth head through zero weights (grow.grow_image_matching); 0 = off
-    grow_image_matching: int = 0
-    # with a prosplat ``init`` without it: add the learned depth sweep over this many band
-    # depths after the depth refiner, through a zero convolution (grow.grow_band); 0 = off
-    grow_band: int = 0
-    grad_clip: float = 0.5
-    # > 0: the saved weights are an exponential moving average of the trained ones with this
-    # decay (prosplat.train.ema: about the last tenth of its updates, up to 1 / (1 - decay)
-    # steps once warmed up, 500 for 0.998 after ~4,500 updates); the raw weights
-    # travel in state.pt for resuming, and validation scores the raw ones. 0: off
-    ema: float = 0.0
-    warmup: int = 500
-    log_every: int = 10
-    val_every: int = 1000
-    val_scenes: int = 8
-    save_every: int = 500
-    seed: int = 0
-    device: str = "auto"
-
-    def __post_init__(self) -> None:
-        check_intervals(self, "log_every", "val_every", "save_every")
-        input_counts(self.inputs)  # fail at construction, not at the first step
-        if self.depth_loss not in DEPTH_LOSSES:
-            raise ValueError(
-                f"depth_loss must be one of {list(DEPTH_LOSSES)}, got {self.depth_loss!r}"
-            )
-        train_sizes(self.sizes)
-        if self.stop_at is not None and self.stop_at < 1:
-            raise ValueError(f"stop_at must be >= 1, got {self.stop_at}")
-        if self.target_scale < 1:
-            raise ValueError(f"target_scale must be >= 1, got {self.target_scale}")
-        if self.grow_fine_matching < 0:
-            raise ValueError(f"grow_fine_matching must be >= 0, got {self.grow_fine_matching}")
-        if self.input_depth_ce_weight < 0:
-            raise ValueError(
-                f"input_depth_ce_weight must be >= 0, got {self.input_depth_ce_weight}"
-            )
-        for name in ("crop_prob", "frame_prob"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        if not 0 <= self.ema < 1:
-            raise ValueError(f"ema is a decay in [0, 1) (0: off), got {self.ema}")
-        if self.frame_prob > 0 and not self.sizes:
-            raise ValueError("frame_prob frames the steps drawn at the data's size: give sizes")
-        if not 0 <= self.grow_alexnet <= MAX_ALEXNET_LAYERS:
-            raise ValueError(
-                f"grow_alexnet must be 0-{MAX_ALEXNET_LAYERS}, got {self.grow_alexnet}"
-            )
-        if self.grow_image_matching < 0 or (
-            self.grow_image_matching and self.grow_image_matching % 2 == 0
-        ):
-            raise ValueError(
-                f"grow_image_matching is an odd window (0: off), got {self.grow_image_matching}"
-            )
-        if self.grow_band < 0 or self.grow_band == 1:
-            raise ValueError(f"grow_band is a candidate count >= 2 (0: off), got {self.grow_band}")
-        for name in ("grow_fine_matching", "grow_alexnet", "grow_image_matching", "grow_band"):
-            if getattr(self, name) and not (self.init or "").endswith(".safetensors"):
-                raise ValueError(f"{name} needs --init with prosplat generator weights")
-
-    @property
-    def last_step(self) -> int:
-        """The step this invocation trains to: ``stop_at`` when set, else ``steps``."""
-        return self.steps if self.stop_at is None else min(self.stop_at, self.steps)
-
-    @property
-    def size_choices(self) -> tuple[int, ...]:
-        """The image sizes steps draw from (empty: the data's own size)."""
-        return train_sizes(self.sizes)
-
-    @property
-    def view_counts(self) -> tuple[int, ...]:
-        """The view counts steps draw from (one element for a fixed count)."""
-        return input_counts(self.inputs)
-
-
-def batch_cameras(K: Tensor, w2c: Tensor, width: int, height: int) -> list[Camera]:
-    """[V,3,3], [V,4,4] -> cameras (float64 so poses stay orthonormal to 1e-4)."""
-    return [Camera(K[v].double(), w2c[v].double(), width, height) for v in range(K.shape[0])]
-
-
-def _render_views(
-    gaussians, cams: list[Camera], bg: Tensor, cpu_backend: str = "cpu-fused"
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Render the loss's cameras (one size): rgb [C,3,H,W], alpha [C,H,W], depth [C,H,W].
-
-    With gsplat on CUDA all cameras go in one call (:func:`render_gsplat_views`). On CUDA
-    without gsplat the Gaussians go to the CPU rasterizer and the outputs come back (autograd
-    follows both copies), so a GPU still trains the network. On the CPU the projection is
-    the fused C++ kernel (``cpu_backend``): the torch projection computes the same float64
-    numbers (the render tests hold them together) through ~100 ops whose autograd cost ~20 %
-    of a training step (``benchmarks/generator_step.py``).
-    """
-    from prosplat.render import _gsplat_available
-
-    device = gaussians.device
-    if device.type == "cuda" and _gsplat_available(device):
-        from prosplat.render.gsplat_backend import render_gsplat_views
-
-        return render_gsplat_views(gaussians, cams, bg)
-    # the CPU path moves non-CPU Gaussians to the CPU and its outputs back
-    outs = [render(gaussians, cam, background=bg, backend=cpu_backend) for cam in cams]
-    rgb, alpha, depth = (
-        torch.stack([getattr(o, k) for o in outs]) for k in ("rgb", "alpha", "depth")
-    )
-    return rgb, alpha, depth
-
-
-def render_loss(
-    output,
-    batch: dict[str, Tensor],
-    cfg: TrainConfig,
-    lpips_fn=None,
-    cpu_backend: str = "cpu-fused",
-) -> tuple[Tensor, dict[str, float]]:
-    """Render every target view of every scene in the batch and compare with ground truth.
-
-    With ``input_render_weight`` the input cameras are rendered too (from all views'
-    Gaussians) and scored the same way, weighted by it.
-
-    Returns the loss (a mean over the batch's views, so DDP's gradient average over
-    ranks equals one process's mean over the union) and its parts (floats, for the log).
-    """
-    from prosplat.metrics import ssim
-
-    targets = batch["target_images"]  # [B,M,3,H,W] (inputs may be smaller: target_scale)
-    b_size, m = targets.shape[:2]
-    bg = torch.zeros(3, device=targets.device)
-    groups = [("target", 1.0)]
-    if cfg.input_render_weight > 0:
-        groups.append(("input", cfg.input_render_weight))
-    zero = targets.new_zeros(())
-    sums = {k: zero for k in ("mse", "lpips", "ssim", "depth", "input_mse")}
-    for b in range(b_size):
-        gaussians = output.gaussians(b)
-        for group, weight in groups:
-            images, depths = batch[f"{group}_images"][b], batch.get(f"{group}_depths")
-            h, w = images.shape[-2:]
-            cams = batch_cameras(batch[f"{group}_K"][b], batch[f"{group}_w2c"][b], w, h)
-            rgb, alpha, depth = _render_views(gaussians, cams, bg, cpu_backend)  # [C,3,H,W]
-            if cfg.fill_holes:
-                rgb = fill_holes(rgb, alpha)  # [C,3,H,W], covered pixels unchanged
-            mse = ((rgb - images) ** 2).mean(dim=(1, 2, 3))  # [C]
-            if group == "input":
-                sums["input_mse"] = sums["input_mse"] + mse.detach().sum()
-            sums["mse"] = sums["mse"] + weight * mse.sum()
-            if lpips_fn is not None and cfg.lpips_weight > 0:
-                sums["lpips"] = sums["lpips"] + weight * lpips_fn(rgb, images).sum()
-            for j in range(len(cams)):
-                if cfg.ssim_weight > 0:
-                    sums["ssim"] = sums["ssim"] + weight * (1 - ssim(rgb[j], images[j]))
-                if cfg.depth_weight > 0 and depths is not None:
-                    gt_d = depths[b, j]
-                    valid = (gt_d > 0) & (alpha[j] > 0.5)
-                    if valid.any():
-                        err = depth_error(depth[j][valid], gt_d[valid], cfg.depth_loss)
-                        sums["depth"] = sums["depth"] + weight * err
-    n = b_size * m
-    parts = {k: v / n for k, v in sums.items()}
-    if cfg.input_render_weight > 0:
-        parts["input_mse"] = sums["input_mse"] / (b_size * batch["input_images"].shape[1])
-    parts["input_depth"] = zero
-    if cfg.input_depth_weight > 0 and "input_depths" in batch:
-        gt_d = batch["input_depths"]  # [B,V,H,W], 0 = no surface
-        valid = gt_d > 0
-        if valid.any():
-            parts["input_depth"] = depth_error(output.depths[valid], gt_d[valid], cfg.depth_loss)
-    parts["input_depth_ce"] = zero
-    if cfg.input_depth_ce_weight > 0 and "input_depths" in batch:
-        if output.depth_logits is None:
-            raise ValueError("--input-depth-ce-weight needs a generator with a depth head")
-        parts["input_depth_ce"] = depth_ce(
-            output.depth_logits, batch["input_depths"], batch["near"], batch["far"]
-        )
-    loss = (
-        parts["mse"]
-        + cfg.lpips_weight * parts["lpips"]
-        + cfg.ssim_weight * parts["ssim"]
-        + cfg.depth_weight * parts["depth"]
-        + cfg.input_depth_weight * parts["input_depth"]
-        + cfg.input_depth_ce_weight * parts["input_depth_ce"]
-    )
-    return loss, {k: float(v.detach()) for k, v in parts.items()}
-
-
-DEPTH_LOSSES = ("inverse", "log")
-
-
-def depth_error(pred: Tensor, gt: Tensor, kind: str) -> Tensor:
-    """Mean L1 between predicted and Blender depths ``[K]`` (gt > 0): of inverse depth
-    (``"inverse"``) or of log depth (``"log"``, scale-free: ``|log(pred / gt)|`` is the
-    relative error to first order, what the AbsRel score measures). Predictions are clamped
-    to 1e-3 so that a depth of 0 stays finite."""
-    pred = pred.clamp_min(1e-3)
-    if kind == "log":
-        return (pred.log() - gt.log()).abs().mean()
-    return (1 / pred - 1 / gt).abs().mean()
-
-
-def depth_ce(logits: Tensor, depths: Tensor, near: Tensor, far: Tensor) -> Tensor:
-    """Cross-entropy of the depth head's distribution against Blender's depth.
-
-    ``logits [B,V,D,h,w]`` over D candidates uniform in inverse depth from ``near`` to
-    ``far`` ([B] each; candidate 0 at near), ``depths [B,V,H,W]`` (0 = no surface) with H, W
-    a multiple k of h, w. Each k x k cell's target is its mean inverse depth, split between
-    the two candidates that bracket it (a two-hot whose expectation is that depth, so the
-    term agrees with the L1 terms' optimum). Cells whose footprint is not one surface (sky,
-    or depths more than 5 % apart: a silhouette, where no single candidate is right) are left
-    out; 0 when no cell is left.
-    """
-    b, v, d, h, w = logits.shape
-    k = depths.shape[-1] // w
-    if depths.shape[-2:] != (h * k, w * k) or k < 1:
-        raise ValueError(
-            f"depth_ce: depths {list(depths.shape)} are not a whole multiple of the logits' "
-            f"{h}x{w} cells"
-        )
-    g = depths.reshape(b * v, 1, h * k, w * k)  # [BV,1,H,W]
-    one = one_surface(g, k)[:, 0]  # [BV,h,w]
-    if not one.any():
-        return logits.sum() * 0.0
-    inv = F.avg_pool2d(1.0 / g.clamp_min(1e-6), k)[:, 0]  # [BV,h,w] mean 1/z
-    inv_near = (1.0 / near).repeat_interleave(v)[:, None, None]  # [BV,1,1]
-    inv_far = (1.0 / far).repeat_interleave(v)[:, None, None]
-    t = ((inv - inv_far) / (inv_near - inv_far)).clamp(0, 1)  # 1 at near, 0 at far
-    pos = (1 - t) * (d - 1)  # [BV,h,w] fractional candidate index
-    below = pos.floor().clamp(max=d - 2)
-    frac = (pos - below)[:, None]  # [BV,1,h,w] weight of the candidate above
-    target = torch.zeros_like(logits.reshape(b * v, d, h, w))
-    idx = below.long()[:, None]  # [BV,1,h,w]
-    target.scatter_(1, idx, 1 - frac)
-    target.scatter_(1, idx + 1, frac)
-    logp = torch.log_softmax(logits.reshape(b * v, d, h, w), dim=1)  # [BV,D,h,w]
-    ce = -(target * logp).sum(1)  # [BV,h,w]
-    return ce[one].mean()
+__all__ = ["TrainConfig", "train", "validate"]
 
 
 def _check_packs_have_depth(ds: SceneDataset, cfg: TrainConfig) -> None:
@@ -536,23 +103,6 @@ def _check_packs_have_depth(ds: SceneDataset, cfg: TrainConfig) -> None:
                 f"{', '.join('--' + n.replace('_', '-') for n in wanted)} need it: pack the "
                 "scenes again without --no-depth"
             )
-
-
-def lr_at(step: int, cfg) -> float:
-    """Linear warm-up, then cosine decay to 10 % of the peak; ``cfg`` is any training config
-    with ``lr``, ``warmup`` and ``steps`` (the generator's and the stage-2 ones)."""
-    if step < cfg.warmup:
-        return cfg.lr * (step + 1) / cfg.warmup
-    t = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)
-    return cfg.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, t))))
-
-
-def _to(batch: dict[str, Tensor], device: torch.device) -> dict[str, Tensor]:
-    return {k: v.to(device) for k, v in batch.items()}
-
-
-def _model_inputs(batch: dict[str, Tensor]) -> tuple[Tensor, ...]:
-    return batch["input_images"], batch["input_K"], batch["input_w2c"], batch["near"], batch["far"]
 
 
 @torch.no_grad()
@@ -577,13 +127,13 @@ def validate(model, cfg: TrainConfig, device: torch.device, ds=None) -> dict[str
     for n in counts:
         scores: dict[str, list[float]] = {"psnr": [], "ssim": [], "lpips": []}
         for i in range(min(cfg.val_scenes, len(ds))):
-            item = _to({k: v[None] for k, v in ds[ItemKey(i, 0, n)].items()}, device)
-            item = _val_view(item, cfg)
-            out = model(*_model_inputs(item))
+            item = to_device({k: v[None] for k, v in ds[ItemKey(i, 0, n)].items()}, device)
+            item = val_view(item, cfg)
+            out = model(*model_inputs(item))
             g = out.gaussians(0)
             h, w = item["target_images"].shape[-2:]
             cams = batch_cameras(item["target_K"][0], item["target_w2c"][0], w, h)
-            rgbs = _render_views(g, cams, torch.zeros(3, device=device))[0].clamp(0, 1)
+            rgbs = render_views(g, cams, torch.zeros(3, device=device))[0].clamp(0, 1)
             for j, pred in enumerate(rgbs):
                 gt = item["target_images"][0, j]
                 scores["psnr"].append(float(psnr(pred, gt)))
@@ -596,87 +146,6 @@ def validate(model, cfg: TrainConfig, device: torch.device, ds=None) -> dict[str
                 result[f"val_{k}_{n}v"] = sum(v) / max(1, len(v))
     model.train(was_training)
     return {**{f"val_{k}": sum(v) / max(1, len(v)) for k, v in totals.items()}, **result}
-
-
-class _StepBatches:
-    """Batch sampler over global steps ``first..last-1``: each batch is this rank's
-    :class:`~prosplat.data.dataset.ItemKey` list for that step (scenes from
-    :func:`step_indices`, one view count from :func:`draw_count`)."""
-
-    def __init__(self, n_items: int, cfg: TrainConfig, first: int, dist: Dist) -> None:
-        self.n_items, self.cfg, self.first, self.dist = n_items, cfg, first, dist
-
-    def __len__(self) -> int:
-        return max(0, self.cfg.last_step - self.first)
-
-    def __iter__(self) -> Iterator[list]:
-        from prosplat.data.dataset import ItemKey
-
-        cfg, d = self.cfg, self.dist
-        for step in range(self.first, cfg.last_step):
-            epoch, idx = step_indices(self.n_items, cfg.batch, cfg.seed, step, d.rank, d.world_size)
-            n = draw_count(cfg.view_counts, cfg.seed, step)
-            yield [ItemKey(i, epoch, n) for i in idx]
-
-
-#: The shortest side of a framing window (frame_window): the generator's 1/4-resolution
-#: features need 16 cells across to match in.
-MIN_FRAME = 64
-
-
-def frame_window(h: int, w: int, rng: random.Random) -> tuple[int, int, int, int]:
-    """A window (top, left, height, width) of an h x w frame that is not the whole frame:
-    height and width drawn apart from the multiples of 32 in [:data:`MIN_FRAME`, the side],
-    the place uniform.
-
-    Why: every rendered scene is a square frame of one field of view, so a generator trained
-    on them alone learns that shape. Generator v6 on the test scenes' 2:1 centre crops
-    (the cameras' principal points moved to match) had twice the median input-depth AbsRel
-    of the same pixels seen in the square frame (0.31 against 0.16), and 0.33 on a 64-px
-    centre crop at the same focal length: users' cameras (16:9 in Blender, portrait phone
-    photos) are not square.
-    """
-    hs = list(range(MIN_FRAME, h + 1, 32))
-    ws = list(range(MIN_FRAME, w + 1, 32))
-    if len(hs) * len(ws) < 2:
-        raise ValueError(f"framing needs frames larger than {MIN_FRAME} px, got {w}x{h}")
-    while True:
-        ch, cw = rng.choice(hs), rng.choice(ws)
-        if (ch, cw) != (h, w):
-            return rng.randint(0, h - ch), rng.randint(0, w - cw), ch, cw
-
-
-def _step_view(batch: dict[str, Tensor], cfg: TrainConfig, step: int) -> dict[str, Tensor]:
-    """This step's image size, and a crop or a downsample to reach it (seeded by the step).
-
-    A crop takes the targets' window (``target_scale`` x the size, at most the data's); the
-    inputs are then downsampled to the size. At the data's own size, ``frame_prob`` of the
-    steps take a window of another shape (:func:`frame_window`) for inputs and targets."""
-    size = draw_count(cfg.size_choices, cfg.seed + 7919, step)
-    h, w = batch["input_images"].shape[-2:]
-    big = min(size * cfg.target_scale, h, w)
-    rng = random.Random(f"prosplat-crop/{cfg.seed}/{step}")
-    if size == h == w and cfg.frame_prob > 0:
-        frame = random.Random(f"prosplat-frame/{cfg.seed}/{step}")
-        if frame.random() < cfg.frame_prob:
-            top, left, ch, cw = frame_window(h, w, frame)
-            return crop_batch(batch, (ch, cw), top, left)
-    if size < min(h, w) and rng.random() < cfg.crop_prob:
-        batch = crop_batch(batch, big, rng.randint(0, h - big), rng.randint(0, w - big))
-    return resize_batch(batch, size, big)
-
-
-def _val_view(item: dict[str, Tensor], cfg: TrainConfig) -> dict[str, Tensor]:
-    """A validation item as the pipeline sees it: the inputs at the largest training size
-    (the size the weights run at), the targets ``target_scale`` x that (at most the data's).
-    Without ``sizes``, the data's own size."""
-    if not cfg.size_choices:
-        return item
-    size = max(cfg.size_choices)
-    h, w = item["input_images"].shape[-2:]
-    if size > min(h, w):
-        return item
-    return resize_batch(item, size, min(size * cfg.target_scale, h, w))
 
 
 def _weights_metadata(pipe, trained_size: int | None = None) -> dict[str, str]:
@@ -807,7 +276,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     val_ds = None
     if cfg.val and dist.is_main:
         val_ds = SceneDataset(cfg.val, n_inputs=counts[0], n_targets=cfg.targets, seed=12345)
-    loader = DataLoader(ds, batch_sampler=_StepBatches(len(ds), cfg, step, dist))
+    loader = DataLoader(ds, batch_sampler=StepBatches(len(ds), cfg, step, dist))
     log = open(log_path, "a") if dist.is_main else None
     bar = tqdm(
         total=cfg.last_step,
@@ -830,14 +299,14 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     try:
         for batch in loader:
             n_views = int(batch["input_images"].shape[1])
-            batch = _to(batch, device)
+            batch = to_device(batch, device)
             if cfg.size_choices:  # a size per step, seeded apart from the view count's draw
-                batch = _step_view(batch, cfg, step)
+                batch = step_view(batch, cfg, step)
             if pipe is not None:  # the size the weights are for: the largest drawn, else the data's
                 pipe.trained_size = max(cfg.size_choices or (int(batch["input_images"].shape[-2]),))
             for group in opt.param_groups:
                 group["lr"] = lr_at(step, cfg)
-            output = ddp_model(*_model_inputs(batch))
+            output = ddp_model(*model_inputs(batch))
             loss, parts = render_loss(output, batch, cfg, lpips_fn)
             opt.zero_grad(set_to_none=True)
             loss.backward()

@@ -39,13 +39,13 @@ from prosplat.train.common import (
     check_intervals,
     claim_run_folder,
     load_checkpoint,
+    lr_at,
     save_checkpoint,
     setup_distributed,
     step_indices,
     truncate_log,
 )
 from prosplat.train.curate import curated_alpha, curated_batch, curated_warp, load_curated
-from prosplat.train.generator import lr_at
 
 
 @dataclass(frozen=True)
@@ -55,30 +55,32 @@ class ImproveTrainConfig:
     # curated file (prosplat train curate), or several joined by commas (e.g. one per size):
     # each step takes its batch from one of them in turn
     data: str
-    out: str
-    config: str = "tiny"
+    out: str  # run folder (checkpoints, log.jsonl); the same folder again resumes
+    config: str = "tiny"  # architecture preset of a new model (prosplat.improve.config)
     init: str | None = None  # start from this improvement checkpoint instead of random
     # a local diffusers-format SD-Turbo folder: build on its VAE/U-Net with LoRA adapters
     # (only LoRA and the new modules train); the saved improve.safetensors has them merged
     pretrained: str | None = None
     val: str | None = None  # curated validation file
-    steps: int = 3000
-    batch: int = 8
-    lr: float = 5e-4
-    lpips_weight: float = 5.0
-    timestep: int = 199
+    steps: int = 3000  # steps of the run (the learning-rate schedule ends here)
+    batch: int = 8  # curated samples per step per process
+    lr: float = 5e-4  # peak learning rate (linear warm-up, then cosine decay to 10 %)
+    lpips_weight: float = 5.0  # weight of LPIPS beside the MSE to the ground truth
+    timestep: int = 199  # the one diffusion timestep the U-Net denoises at
+    # x0 from the U-Net's noise prediction (one-step diffusion); off: the U-Net's output is
+    # the new latent (the paper's "VAE + U-Net" ablation row)
     denoise: bool = True
-    reference: bool = True
+    reference: bool = True  # the MORI reference through DWEA (off: the ablation row)
     # DWEA's epipolar weighting (off: plain attention, the ablation row; ImproveConfig.epipolar)
     epipolar: bool = True
     reference_method: str = "paper"  # "paper" | "overlap"
-    grad_clip: float = 1.0
-    warmup: int = 100
-    log_every: int = 10
-    val_every: int = 500
-    save_every: int = 500
-    seed: int = 0
-    device: str = "auto"
+    grad_clip: float = 1.0  # gradient norm clip
+    warmup: int = 100  # steps of linear learning-rate warm-up
+    log_every: int = 10  # steps between log.jsonl records
+    val_every: int = 500  # steps between validations (with val)
+    save_every: int = 500  # steps between checkpoints
+    seed: int = 0  # seeds the weights, the data order and the augmentations
+    device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
     crop: int = 0  # random square crops of this size (0: whole views; prosplat.train.augment)
     flip: bool = False  # random horizontal flips (the fundamental matrices follow)
     alpha: bool = False  # give the model the render's alpha (needs a set curated with alpha)
@@ -116,22 +118,22 @@ class JointTrainConfig:
     """A joint run: generator adapter + improvement VAE encoder (and decoder)."""
 
     data: str  # scene folders
-    out: str
+    out: str  # run folder (checkpoints, log.jsonl); the same folder again resumes
     generator: str  # generator checkpoint
     improver: str  # improvement checkpoint (independently trained)
-    steps: int = 500
-    inputs: int = 2
-    targets: int = 4
-    lr: float = 5e-5
-    lpips_weight: float = 5.0
-    train_decoder: bool = True
-    reference_method: str = "paper"
-    grad_clip: float = 1.0
-    warmup: int = 20
-    log_every: int = 10
-    save_every: int = 100
-    seed: int = 0
-    device: str = "auto"
+    steps: int = 500  # steps of the run (the learning-rate schedule ends here)
+    inputs: int = 2  # input views per scene
+    targets: int = 4  # target views per scene, the loss summed over them
+    lr: float = 5e-5  # peak learning rate (linear warm-up, then cosine decay to 10 %)
+    lpips_weight: float = 5.0  # weight of LPIPS beside the MSE to the ground truth
+    train_decoder: bool = True  # train the VAE decoder too (the paper's implementation)
+    reference_method: str = "paper"  # "paper" | "overlap"
+    grad_clip: float = 1.0  # gradient norm clip
+    warmup: int = 20  # steps of linear learning-rate warm-up
+    log_every: int = 10  # steps between log.jsonl records
+    save_every: int = 100  # steps between checkpoints
+    seed: int = 0  # seeds the data order
+    device: str = "auto"  # auto | cpu | cuda | cuda:N | mps
 
     def __post_init__(self) -> None:
         check_intervals(self, "log_every", "save_every")
@@ -449,7 +451,7 @@ def _train_joint(cfg: JointTrainConfig, progress: bool, dist: Dist) -> tuple[Pat
     from prosplat.metrics import LPIPS
     from prosplat.pipeline.model import ProSplat
     from prosplat.render import render
-    from prosplat.train.generator import batch_cameras
+    from prosplat.train.batches import batch_cameras
 
     device = dist.device
     torch.manual_seed(cfg.seed)

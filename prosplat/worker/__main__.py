@@ -2,6 +2,6 @@
 
 import sys
 
-from prosplat.worker import main
+from prosplat.worker.cli import main
 
 sys.exit(main())

@@ -28,6 +28,9 @@ import threading
 import time
 from typing import IO, Any
 
+from prosplat.worker.jobs import run_job_file
+from prosplat.worker.protocol import PROTOCOL, STATS
+
 _PARENT_CHECK_S = 2.0
 
 
@@ -56,11 +59,10 @@ def _exit_with_parent(parent: int) -> None:
 
 def serve(requests: IO[str] | None = None, out: IO[str] | None = None) -> int:
     """Run jobs named on ``requests`` (default stdin) until ``stop`` or end of input."""
-    from prosplat.worker import PROTOCOL, STATS, run_job_file
     from prosplat.worker.threads import apply_threads
 
     # OMP_WAIT_POLICY must be set before torch loads, i.e. by whoever starts this process
-    # (the add-on does: addon/worker_process.py); importing prosplat already loaded torch.
+    # (the add-on does: addon/core/worker_process.py); importing prosplat already loaded torch.
     requests = requests or sys.stdin
     out = out or _protocol_stream()
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()

@@ -22,8 +22,8 @@ from prosplat.convert.pointcloud import from_attributes, to_attributes, transfor
 from prosplat.convert.posed import camera_from_dict, camera_to_blender_dict, read_posed_images
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
-from prosplat.worker import Progress
 from prosplat.worker.models import MODELS
+from prosplat.worker.protocol import Cancelled, Progress
 
 SIZE_MULTIPLE = 32  # the generator's image sizes are multiples of this (DepthSplat's: 16 or 32)
 
@@ -191,17 +191,17 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
         0.35, f"running the generator on {len(cameras)} views{sweep}, then the Gaussian budget"
     )
     refining = any(b is not None for b in refine_budget)
-    pruned = model.reconstruct_pruned(
+    rec = model.reconstruct(
         images.to(device), cameras, params.get("near"), params.get("far"),
         budget=params.get("budget") or None,
     )  # fmt: skip
-    gw, gh = pruned.cameras[0].width, pruned.cameras[0].height
-    g, stats, t_gen = pruned.gaussians.to("cpu"), pruned.stats, pruned.generator_s
+    gw, gh = rec.cameras[0].width, rec.cameras[0].height
+    g, stats, t_gen = rec.gaussians.to("cpu"), rec.prune_stats, rec.timings["generator"]
     if len(g) == 0:
         raise ValueError("the generator produced no visible Gaussians for these views")
     t_refine = 0.0
     if refining:
-        depths = pruned.depths_for(images)
+        depths = rec.depths_for(images)
         depths = None if depths is None else depths.cpu()
         g, t_refine = _refine(refine_budget, g, images, cameras, depths, progress)
     if params.get("ply"):
@@ -260,8 +260,6 @@ def _refine(budget: tuple, g: Gaussians, images, cameras, depths, progress: Prog
         depths=depths, progress=report, cancel=progress.cancelled,
     )  # fmt: skip
     if result.stats.cancelled:
-        from prosplat.worker import Cancelled
-
         raise Cancelled("cancelled while refining")
     return result.gaussians, result.stats.seconds
 
@@ -300,8 +298,6 @@ def _distill(params: dict, model, g: Gaussians, images, in_cams, cams, progress:
         progress=report, cancel=progress.cancelled,
     )  # fmt: skip
     if result.stats.cancelled:
-        from prosplat.worker import Cancelled
-
         raise Cancelled("cancelled while distilling")
     return result.gaussians, True
 

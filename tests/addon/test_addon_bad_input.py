@@ -16,7 +16,8 @@ bpy = pytest.importorskip("bpy")
 from addon_support import data_counts, reset_scene, run_op  # noqa: E402
 from synthetic_scenes import write_synthetic_scene  # noqa: E402
 
-from addon import capture, jobs, modal, steps  # noqa: E402
+from addon.blender import capture, modal, steps  # noqa: E402
+from addon.core import jobs  # noqa: E402
 
 
 @pytest.fixture

@@ -179,7 +179,7 @@ def test_bad_posed_images_create_nothing(blank, tmp_path: Path, breakage, messag
 
 
 def test_render_targets_active_selected_and_frame_range(blank) -> None:
-    from addon import steps
+    from addon.blender import steps
 
     scene = bpy.context.scene
     scene.render.resolution_x, scene.render.resolution_y = 80, 60

@@ -17,7 +17,8 @@ bpy = pytest.importorskip("bpy")
 from addon_support import data_counts, reset_scene, run_op  # noqa: E402
 from synthetic_scenes import write_synthetic_scene  # noqa: E402
 
-from addon import depthsplat_file, pointcloud, preferences, runtime, steps  # noqa: E402
+from addon.blender import pointcloud, preferences, runtime, steps  # noqa: E402
+from addon.core import depthsplat_file  # noqa: E402
 from prosplat.core.image_io import read_image  # noqa: E402
 from prosplat.generator.depthsplat import random_encoder, save_released_format  # noqa: E402
 from prosplat.generator.depthsplat.config import SMALL  # noqa: E402

@@ -19,7 +19,7 @@ from addon_support import reset_scene, run_op  # noqa: E402
 from posed_data import scene_cameras, write_transforms_set  # noqa: E402
 from synthetic_scenes import write_synthetic_scene  # noqa: E402
 
-from addon import api, cameras, jobs, steps  # noqa: E402
+from addon.blender import api, cameras, runtime, steps  # noqa: E402
 from prosplat.core.image_io import read_image  # noqa: E402
 from prosplat.metrics import psnr  # noqa: E402
 
@@ -80,7 +80,7 @@ def _all_inputs_scene(folder: Path, n: int) -> Path:
 
 
 def _reconstruct_result(coll) -> dict:
-    return jobs.run_sync(*steps.reconstruct_job(coll, bpy.context.scene))
+    return runtime.run_sync(*steps.reconstruct_job(coll, bpy.context.scene))
 
 
 def test_view_choice_at_most_max_views_and_the_override(blank, tmp_path: Path) -> None:

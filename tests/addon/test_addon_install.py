@@ -16,13 +16,13 @@ pytest.importorskip("bpy")
 
 import addon_support  # noqa: E402, F401 - puts the repository root on sys.path
 
-from addon import install, pins  # noqa: E402
+from addon.core import install, pins  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_pins_match_the_tested_environment() -> None:
-    """``scripts/pin_requirements.py --check`` regenerates addon/pins.py from this
+    """``scripts/pin_requirements.py --check`` regenerates addon/core/pins.py from this
     environment's installed versions: a changed pin or version fails here."""
     res = subprocess.run([sys.executable, str(ROOT / "scripts" / "pin_requirements.py"),
                           "--check"], capture_output=True, text=True, timeout=300)  # fmt: skip

@@ -29,7 +29,8 @@ from test_addon_splat_display import (  # noqa: E402
     _splats,
 )
 
-from addon import api, native_splats, pointcloud, splat_math  # noqa: E402
+from addon.blender import api, native_splats, pointcloud  # noqa: E402
+from addon.core import splat_math  # noqa: E402
 from prosplat import read_ply, write_ply  # noqa: E402
 from prosplat.convert.pointcloud import to_attributes  # noqa: E402
 from prosplat.core.image_io import read_image  # noqa: E402

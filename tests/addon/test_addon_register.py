@@ -38,7 +38,7 @@ def _registered() -> dict[str, bool]:
     return {
         "scene_props": hasattr(bpy.types.Scene, "prosplat"),
         "panel": hasattr(bpy.types, "PROSPLAT_PT_main"),
-        "prefs": addon.preferences.ProSplatPreferences.is_registered,
+        "prefs": addon.blender.preferences.ProSplatPreferences.is_registered,
         **{op: hasattr(bpy.types, f"PROSPLAT_OT_{op}") for op in OPERATORS},
     }
 
@@ -58,11 +58,12 @@ def test_register_unregister_register_again(blank) -> None:
 
 
 def test_preferences_default_without_enabling(blank) -> None:
-    from addon import runtime
+    from addon.blender import runtime
+    from addon.core import requirements
 
     p = runtime.prefs()
     assert (p.device, p.enhance, p.budget, p.python_path) == ("AUTO", True, 0, "")
-    versions = runtime.requirement_versions()
+    versions = requirements.requirement_versions()
     assert versions["numpy"] and "torch" in versions and "prosplat" in versions
 
 
@@ -92,7 +93,9 @@ def test_zip_layout_and_reproducible(built_zip: Path, tmp_path: Path) -> None:
         names = zf.namelist()
         manifest = tomllib.loads(zf.read("blender_manifest.toml").decode())
         wheel = zf.read("wheels/prosplat-0.1.0-py3-none-any.whl")
-    assert {"__init__.py", "operators.py", "blender_manifest.toml"} <= set(names)
+    # both layers' subfolders, with the root that registers them
+    assert {"__init__.py", "blender/__init__.py", "blender/operators.py", "core/__init__.py",
+            "core/jobs.py", "core/pins.py", "blender_manifest.toml", "README.md"} <= set(names)  # fmt: skip
     assert not any("__pycache__" in n for n in names)
     assert manifest["wheels"] == ["./wheels/prosplat-0.1.0-py3-none-any.whl"]
     (tmp_path / "w.whl").write_bytes(wheel)
@@ -168,7 +171,7 @@ class _Layout:
 def test_panels_and_menus_draw(blank, tmp_path: Path) -> None:
     from factories import random_gaussians
 
-    from addon import modal, preferences, ui
+    from addon.blender import modal, preferences, ui
     from prosplat import write_ply
 
     write_ply(random_gaussians(10, 0), tmp_path / "g.ply")
@@ -212,7 +215,7 @@ def test_panels_and_menus_draw(blank, tmp_path: Path) -> None:
 
 
 def test_pip_install_reports_progress_and_result() -> None:
-    from addon import install
+    from addon.core import install
 
     cmd = install.pip_commands("/deps", "CPU", "--proxy URL")[
         -1

@@ -21,7 +21,8 @@ bpy = pytest.importorskip("bpy")
 
 from addon_support import data_counts, evaluated_instances, reset_scene, run_op  # noqa: E402
 
-from addon import jobs, native_splats, pointcloud, splat_display, splat_math, steps  # noqa: E402
+from addon.blender import native_splats, pointcloud, runtime, splat_display, steps  # noqa: E402
+from addon.core import splat_math  # noqa: E402
 from prosplat import Gaussians, read_ply, write_ply  # noqa: E402
 from prosplat.convert.pointcloud import to_attributes  # noqa: E402
 from prosplat.core.gaussians import SH_C0, rgb_to_sh0  # noqa: E402
@@ -309,7 +310,7 @@ def test_import_reports_dropped_ply_properties(blank, tmp_path: Path) -> None:
     transform = np.zeros(1, dtype=[("transform", "f4")])
     PlyData([PlyElement.describe(vertex, "vertex"),
              PlyElement.describe(transform, "transform")]).write(str(tmp_path / "super.ply"))  # fmt: skip
-    result = jobs.run_sync(*steps.import_ply_job(str(tmp_path / "super.ply")))
+    result = runtime.run_sync(*steps.import_ply_job(str(tmp_path / "super.ply")))
     assert result["warnings"] == [
         "super.ply: dropped elements transform (not part of a 3DGS Gaussian)"
     ]

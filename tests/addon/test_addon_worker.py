@@ -17,7 +17,8 @@ pytest.importorskip("bpy")
 import addon_support  # noqa: E402, F401 - puts the repository root on sys.path
 from synthetic_scenes import worker_scene  # noqa: E402
 
-from addon import jobs, runtime, worker_process  # noqa: E402
+from addon.blender import runtime  # noqa: E402
+from addon.core import jobs, worker_process  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -142,11 +143,15 @@ def test_one_process_per_job_when_asked(tmp_path: Path) -> None:
 def test_make_job_passes_the_thread_preference(monkeypatch, tmp_path: Path) -> None:
     prefs = runtime.Defaults(threads=1, python_path=sys.executable)
     monkeypatch.setattr(runtime, "prefs", lambda context=None: prefs)
-    job = jobs.make_job("export_ply", {"path": str(tmp_path / "g.ply"), "arrays": _tiny_arrays()})
+    job = runtime.make_job(
+        "export_ply", {"path": str(tmp_path / "g.ply"), "arrays": _tiny_arrays()}
+    )
     assert isinstance(job, jobs.ExternalJob) and job.persistent and job.params["threads"] == 1
     assert job.start().wait(timeout=300)["worker"]["threads"] == 1
     prefs.threads, prefs.keep_worker = 0, False
-    job = jobs.make_job("export_ply", {"path": str(tmp_path / "h.ply"), "arrays": _tiny_arrays()})
+    job = runtime.make_job(
+        "export_ply", {"path": str(tmp_path / "h.ply"), "arrays": _tiny_arrays()}
+    )
     assert not job.persistent and job.params["threads"] == 0
 
 
@@ -169,7 +174,7 @@ def _tiny_arrays() -> dict:
 def test_a_camera_path_shows_as_one_image_sequence(tmp_path: Path) -> None:
     import bpy
 
-    from addon import steps
+    from addon.blender import steps
 
     for f in (1, 2, 3):  # three frames as the render task writes them
         img = bpy.data.images.new(f"f{f}", 4, 4)

@@ -18,8 +18,8 @@ bpy = pytest.importorskip("bpy")
 
 from addon_support import ROOT, data_counts, ensure_registered, run_op  # noqa: E402
 
-from addon import api, capture  # noqa: E402
-from addon.pointcloud import point_count, read_arrays  # noqa: E402
+from addon.blender import api, capture  # noqa: E402
+from addon.blender.pointcloud import point_count, read_arrays  # noqa: E402
 from prosplat import Camera  # noqa: E402
 from prosplat.convert.blender import blender_from_camera  # noqa: E402
 from prosplat.core.image_io import read_image  # noqa: E402
@@ -81,7 +81,7 @@ def _same_as_library(capture_dir: Path, obj) -> None:
     images = torch.stack([read_image(capture_dir / f.file_path) for f in tf.frames])
     want = (
         ProSplat.from_pretrained(improve=False)
-        .reconstruct_pruned(images, cams, tf.meta["near"], tf.meta["far"], generator_height=0)
+        .reconstruct(images, cams, tf.meta["near"], tf.meta["far"], generator_height=0)
         .gaussians
     )  # the generator, its depth sweep and the budget, as the worker runs them
     got, w = read_arrays(obj)["position"], want.means.numpy()
@@ -170,7 +170,7 @@ def test_reconstruct_with_a_refinement_time_budget(tabletop) -> None:
 def test_render_view_distills_when_asked(tabletop, tmp_path: Path) -> None:
     """Distill Steps (off by default) makes Render View fit the Gaussians to the enhanced
     views first and render from them; the status line says so."""
-    from addon import runtime, steps
+    from addon.blender import runtime, steps
 
     scene, inputs, target, folder = tabletop
     coll = scene.prosplat.inputs
@@ -192,7 +192,7 @@ def test_render_jobs_carry_each_gaussians_view_while_the_inputs_are_those_used(
     the numbers would point at the wrong input, so the attribute stays behind."""
     import numpy as np
 
-    from addon import steps
+    from addon.blender import steps
 
     scene, inputs, target, folder = tabletop
     coll = scene.prosplat.inputs
@@ -218,7 +218,7 @@ def test_raw_render_views_fill_the_holes_by_default(tabletop, tmp_path: Path) ->
     """Fill Holes defaults to Raw Renders: a raw Render View shows the fill where no input
     saw the scene instead of black (which costs the shipped generator about 9 dB); "off" leaves
     the black."""
-    from addon import runtime, steps
+    from addon.blender import runtime, steps
 
     scene, inputs, target, folder = tabletop
     coll = scene.prosplat.inputs

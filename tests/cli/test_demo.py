@@ -118,24 +118,24 @@ def test_demo_bad_arguments_exit_2(tmp_path, capsys, bad, message):
 def test_demo_refines_from_the_one_pass_gaussians(first_run, tmp_path, monkeypatch, refine_steps):
     """The demo asks the generator for the depth sweep's scene-wide factor whether or not it
     refines: refinement starts from the one-pass Gaussians, as everywhere else in the pipeline
-    (ProSplat.reconstruct_refined). Blender is replaced by a copy of the first run's scene."""
+    (ProSplat.reconstruct). Blender is replaced by a copy of the first run's scene."""
     import shutil
 
     import prosplat.cli.demo as demo
     from prosplat.pipeline.model import ProSplat
 
     asked: list[bool] = []
-    generate = ProSplat.generate
+    reconstruct = ProSplat.reconstruct
 
     def spy(self, *args, **kwargs):
         asked.append(kwargs.get("depth_scale", True))
-        return generate(self, *args, **kwargs)
+        return reconstruct(self, *args, **kwargs)
 
     def scene_copy(cfg, dest, blend):
         shutil.copytree(first_run.scene_folder, dest)
         return dest
 
-    monkeypatch.setattr(ProSplat, "generate", spy)
+    monkeypatch.setattr(ProSplat, "reconstruct", spy)
     monkeypatch.setattr(demo, "render_scene_with_blender", scene_copy)
     res = run_demo(DemoConfig(out=tmp_path / "d", refine_steps=refine_steps, **TINY))
     assert asked == [True]

@@ -13,7 +13,8 @@ from prosplat.data.dataset import ItemKey
 from prosplat.data.packed import Pack, pack_scenes
 from prosplat.data.scene import load_scene
 from prosplat.metrics import psnr
-from prosplat.train.generator import TrainConfig, _step_view, crop_batch, resize_batch, train_sizes
+from prosplat.train.batches import crop_batch, resize_batch, step_view
+from prosplat.train.generator_config import TrainConfig, train_sizes
 
 
 @pytest.fixture(scope="module")
@@ -205,14 +206,14 @@ def test_targets_at_a_multiple_of_the_input_size():
         resize_batch(batch, 64, 256)
 
     cfg = TrainConfig(data="", out="", sizes="32", target_scale=2)
-    view = _step_view(batch, cfg, step=0)
+    view = step_view(batch, cfg, step=0)
     assert view["input_images"].shape[-1] == 32 and view["target_images"].shape[-1] == 64
     # a scale beyond the data stops at the data's size
-    view = _step_view(batch, TrainConfig(data="", out="", sizes="64", target_scale=4), step=0)
+    view = step_view(batch, TrainConfig(data="", out="", sizes="64", target_scale=4), step=0)
     assert view["input_images"].shape[-1] == 64 and view["target_images"].shape[-1] == 128
     assert torch.equal(view["target_K"], batch["target_K"])
     # crops: a 64-px window at the data's scale for the targets, its 32-px downsample for inputs
-    cropped = _step_view(
+    cropped = step_view(
         batch, TrainConfig(data="", out="", sizes="32", target_scale=2, crop_prob=1.0), 0
     )
     assert cropped["target_images"].shape[-1] == 64 and cropped["input_images"].shape[-1] == 32

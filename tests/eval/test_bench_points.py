@@ -14,9 +14,9 @@ from synthetic_scenes import write_synthetic_scene
 
 from prosplat import ProSplat
 from prosplat.data import load_scene
+from prosplat.data.rigs import pick_inputs
 from prosplat.data.scene import resize_views
 from prosplat.eval.bench import pareto, points
-from prosplat.eval.generator import pick_inputs
 from prosplat.geometry.budget import prune_gaussians
 from prosplat.metrics import psnr
 
@@ -154,10 +154,12 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
         idx = pick_inputs(scene, views)
         cams = [scene.cameras[i] for i in idx]
         near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
-        out, _ = model.generate(scene.images[idx], cams, near, far, height=0)
-        depths = out.depths[0]  # [V,H,W]
+        out = model.reconstruct(
+            scene.images[idx], cams, near, far, budget="all", generator_height=0
+        )
+        depths = out.depths  # [V,H,W]
         view_index = torch.arange(views).repeat_interleave(depths[0].numel())
-        g = prune_gaussians(out.gaussians(0), view_index, depths, cams, budget=budget)[0]
+        g = prune_gaussians(out.gaussians, view_index, depths, cams, budget=budget)[0]
         for r in (r for r in rows if r["point"] == label):
             cam = scene.cameras[r["target"]]
             j = select_reference(cam, cams)
@@ -166,13 +168,13 @@ def test_rows_are_finite_amortised_exactly_and_enhance_off_matches_raw_render(da
             expected = float(psnr(rgb, scene.images[r["target"]]))
             assert r["psnr"] == pytest.approx(expected, abs=1e-4) and r["gaussians"] == len(g)
             assert r["psnr_raw"] == r["psnr"] and r["dtype"] == "-"
-    # refinement starts from the pipeline's pruned Gaussians (reconstruct_pruned: its budget
+    # refinement starts from the pipeline's pruned Gaussians (reconstruct: its budget
     # keeps the same ones with the scene-wide depth factor and without) and keeps their count
     p = next(p for p in pts if p.label == "refine 4")
     idx = pick_inputs(scene, p.views)
     near, far = float(scene.near[idx].min()), float(scene.far[idx].max())
     imgs, cams = resize_views(scene.images[idx], [scene.cameras[i] for i in idx], p.size)
-    start = model.reconstruct_pruned(imgs, cams, near, far, budget=p.budget).gaussians
+    start = model.reconstruct(imgs, cams, near, far, budget=p.budget).gaussians
     assert {r["gaussians"] for r in rows if r["point"] == "refine 4"} == {len(start)}
     enhanced = [r for r in rows if r["point"] == "base"]
     assert any(r["psnr"] != r["psnr_raw"] for r in enhanced)  # the improver changed something

@@ -104,7 +104,7 @@ def test_blender_only_cases_are_not_applicable_on_the_synthetic_scene(results, c
 def test_near_equals_far_raises_a_value_error_naming_near(model, scene):
     images, cams = scene.images[[0, 4]], [scene.cameras[0], scene.cameras[4]]
     with pytest.raises(ValueError, match="near"):
-        model.reconstruct_full(images, cams, near=3.0, far=3.0)
+        model.run_generator(images, cams, near=3.0, far=3.0)
 
 
 def test_target_is_input_reproduces_the_input_and_mori_picks_it(results):
@@ -119,7 +119,7 @@ def test_target_behind_inputs_sees_nothing(model, scene):
     cams = [scene.cameras[s.a], scene.cameras[s.b]]
     images = scene.images[[s.a, s.b]]
     target = hard_cases._behind_target(s, cams)
-    g = model.reconstruct(images, cams, s.near, s.far)
+    g = model.reconstruct(images, cams, s.near, s.far, budget="all").gaussians
     assert (target.world_to_camera(g.means)[:, 2] < 0).all()  # every Gaussian is behind it
     view = model.render(g, target, images, cams, dtype=torch.bfloat16)
     assert view.alpha.max() < 1e-3

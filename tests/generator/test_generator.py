@@ -20,7 +20,8 @@ from prosplat.generator.cost_volume import (
     scale_intrinsics,
     warp_grid,
 )
-from prosplat.pipeline.model import ProSplat, near_far_from_cameras
+from prosplat.geometry.rig import near_far_from_cameras
+from prosplat.pipeline.model import ProSplat
 from prosplat.render.projection import quat_to_rotmat
 
 # Smaller than TINY so every test runs in well under a second on 2 cores; SH degree 1 and k=2
@@ -595,8 +596,8 @@ def test_config_round_trip_and_presets():
     assert 10e6 <= Generator(BASE).num_parameters() <= 30e6
 
 
-def test_generate_caps_the_gaussian_size_and_rounds_odd_sizes():
-    """:meth:`ProSplat.generate` places Gaussians at the inputs' size up to
+def test_reconstruct_caps_the_gaussian_size_and_rounds_odd_sizes():
+    """:meth:`ProSplat.reconstruct` places Gaussians at the inputs' size up to
     MAX_GAUSSIAN_SCALE x the matching height, on a multiple of 32: larger or odd inputs are
     resized first (so a 1080p camera's inputs do not make millions of Gaussians a view)."""
     torch.manual_seed(6)
@@ -606,10 +607,10 @@ def test_generate_caps_the_gaussian_size_and_rounds_odd_sizes():
     for size, expect in ((cap + 32, cap), (100, 96), (64, 64), (32, 32)):
         cams = rig(2, size, size)
         images = torch.rand(2, 3, size, size, generator=torch.Generator().manual_seed(size))
-        out, out_cams = m.generate(images, cams, NEAR, FAR)
+        out = m.reconstruct(images, cams, NEAR, FAR, budget="all")
         assert out.depths.shape[-2:] == (expect, expect), size
-        assert (out_cams[0].width, out_cams[0].height) == (expect, expect)
-        assert len(out.gaussians(0)) == 2 * expect * expect
+        assert (out.cameras[0].width, out.cameras[0].height) == (expect, expect)
+        assert len(out.gaussians) == 2 * expect * expect
 
 
 def test_save_load_round_trip(tmp_path):
@@ -624,8 +625,8 @@ def test_save_load_round_trip(tmp_path):
     assert b.config == SMALL
     cams = rig(2, 32, 32)
     images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
-    ga = a.reconstruct(images, cams, NEAR, FAR)
-    gb = b.reconstruct(images, cams, NEAR, FAR)
+    ga = a.reconstruct(images, cams, NEAR, FAR, budget="all").gaussians
+    gb = b.reconstruct(images, cams, NEAR, FAR, budget="all").gaussians
     for name, t in ga.tensors().items():
         assert torch.equal(t, gb.tensors()[name]), name
     with pytest.raises(FileExistsError, match="overwrite=True"):
@@ -633,7 +634,9 @@ def test_save_load_round_trip(tmp_path):
     torch.manual_seed(5)
     ProSplat(SMALL).save(path, overwrite=True)
     c = ProSplat.from_pretrained(path, depth_sweep=False)
-    assert not torch.equal(c.reconstruct(images, cams, NEAR, FAR).means, ga.means)
+    assert not torch.equal(
+        c.reconstruct(images, cams, NEAR, FAR, budget="all").gaussians.means, ga.means
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gen.safetensors"]  # no temp files left
     with pytest.raises(ValueError, match="different generator config"):
         ProSplat.from_pretrained(path, config=TINY)
@@ -661,19 +664,19 @@ def test_reconstruct_derives_near_far_and_rejects_coincident_cameras():
     pnear, pfar = near_far_from_cameras(parallel)
     assert pnear == pytest.approx(0.5 * 1.0 * 0.9) and pfar == pytest.approx(100.0)
     images = torch.rand(3, 3, 32, 32)
-    out = model.reconstruct_full(images, cams)
+    out = model.run_generator(images, cams)
     assert (out.depths >= near * 0.999).all() and (out.depths <= far * 1.001).all()
     assert out.means.grad_fn is None
-    assert model.reconstruct_full(images, cams, grad=True).means.requires_grad
+    assert model.run_generator(images, cams, grad=True).means.requires_grad
     # the generator's mode comes back as it was, every submodule with it (training resumes)
     for training in (True, False):
         model.generator.train(training)
-        model.reconstruct_full(images, cams)
+        model.run_generator(images, cams)
         assert {m.training for m in model.generator.modules()} == {training}
     rotated = Camera.look_at(cams[0].center, (1.0, 0.0, 0.0), (0, -1, 0), 28.8, 32, 32)
     with pytest.raises(ValueError, match="same place"):
         model.reconstruct(images, [cams[0], rotated, cams[1]])
-    g = model.reconstruct(images, [cams[0], rotated, cams[1]], near=1.0, far=10.0)
+    g = model.reconstruct(images, [cams[0], rotated, cams[1]], near=1.0, far=10.0).gaussians
     assert torch.isfinite(g.means).all()
     with pytest.raises(ValueError, match="3 images but 2 cameras"):
         model.reconstruct(images, cams[:2])
@@ -691,7 +694,7 @@ def test_shipped_tiny_weights_load_and_reconstruct():
     cams = orbit_cameras(2, 64, 64)
     scene = pixel_aligned_gaussians(cams)
     images = torch.stack([render(scene, c).rgb for c in cams])
-    out = model.reconstruct_full(images, cams, near=1.0, far=8.0)
+    out = model.run_generator(images, cams, near=1.0, far=8.0)
     g = out.gaussians(0)
     assert len(g) == 2 * 64 * 64
     assert torch.isfinite(out.depths).all() and (out.depths >= 1.0 - 1e-4).all()

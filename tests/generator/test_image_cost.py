@@ -24,7 +24,7 @@ from prosplat import Camera
 from prosplat.generator import Generator, GeneratorConfig
 from prosplat.generator.cost_volume import inverse_depth_candidates, nearest_views
 from prosplat.generator.image_cost import image_cost_volume
-from prosplat.train.generator import TrainConfig
+from prosplat.train.generator_config import TrainConfig
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -161,18 +161,18 @@ def test_snapping_an_output_moves_its_gaussians_toward_the_truth(blender_scene):
 def test_the_pipeline_sweeps_when_asked(views):
     cams, images, _ = views
     model = ProSplat(trained_size=SIZE)
-    plain = model.reconstruct_pruned(images, cams)
+    plain = model.reconstruct(images, cams)
     model.depth_sweep = DepthSweepOptions()
-    swept = model.reconstruct_pruned(images, cams)
+    swept = model.reconstruct(images, cams)
     assert swept.depths.shape == plain.depths.shape
     assert not torch.equal(swept.depths, plain.depths)
     assert len(swept.view_index) == len(swept.gaussians)
 
 
 def test_the_pipeline_scales_one_pass_views_and_refines_from_them(views, monkeypatch):
-    """reconstruct_pruned applies the search's factor (here forced to 1.1), depth_scale=False
-    leaves it out, and reconstruct_refined starts from the scaled one-pass Gaussians: 0 steps
-    is the one-pass scene."""
+    """reconstruct applies the search's factor (here forced to 1.1), depth_scale=False
+    leaves it out, and refinement starts from the scaled one-pass Gaussians: 0 steps is the
+    one-pass scene."""
     import prosplat.pipeline.depth_sweep as depth_sweep
 
     cams, images, _ = views
@@ -185,19 +185,19 @@ def test_the_pipeline_scales_one_pass_views_and_refines_from_them(views, monkeyp
         return 1.1, [(1.1, 0.0)]
 
     monkeypatch.setattr(depth_sweep, "scale_search", forced)
-    plain = model.reconstruct_pruned(images, cams, depth_scale=False)
+    plain = model.reconstruct(images, cams, depth_scale=False)
     assert calls == []
-    scaled = model.reconstruct_pruned(images, cams)
+    scaled = model.reconstruct(images, cams)
     assert calls == [len(cams)]
     torch.testing.assert_close(scaled.depths, plain.depths * 1.1)
     assert len(scaled.gaussians) == len(plain.gaussians)  # the factor comes after the budget
     assert torch.equal(scaled.view_index, plain.view_index)
-    refined = model.reconstruct_refined(images, cams, steps=0)
+    refined = model.reconstruct(images, cams, refine_steps=0)
     assert calls == [len(cams)] * 2
     torch.testing.assert_close(refined.gaussians.means, scaled.gaussians.means)
     calls.clear()
     model.depth_sweep = DepthSweepOptions(scale_candidates=0)
-    model.reconstruct_pruned(images, cams)
+    model.reconstruct(images, cams)
     assert calls == []
 
 

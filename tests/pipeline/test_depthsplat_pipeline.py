@@ -48,7 +48,7 @@ def test_from_pretrained_generator_gives_gaussians_that_render(released_file):
     g = torch.Generator().manual_seed(0)
     cams = cameras(70, 60)  # not multiples of 16: resized to 64x64
     images = torch.rand(3, 3, 60, 70, generator=g)
-    out = model.reconstruct_full(images, cams, near=1.0, far=8.0)
+    out = model.run_generator(images, cams, near=1.0, far=8.0)
     assert out.depths.shape == (1, 3, 64, 64)
     gs = out.gaussians(0)
     assert gs.means.shape == (3 * 64 * 64, 3) and gs.sh.shape == (3 * 64 * 64, 9, 3)

@@ -153,7 +153,7 @@ def test_prosplat_distill_uses_the_loaded_improvement_model():
     images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)
     model = ProSplat.from_pretrained()
     inputs, views = [0, 4], [1, 2, 3]
-    g = model.reconstruct_pruned(images[inputs], [cams[i] for i in inputs], 1.0, 8.0).gaussians
+    g = model.reconstruct(images[inputs], [cams[i] for i in inputs], 1.0, 8.0).gaussians
     out = model.distill(g, [cams[i] for i in views], images[inputs], [cams[i] for i in inputs],
                         steps=3)  # fmt: skip
     assert out.enhanced.shape == (3, 3, 64, 64) and out.stats.steps == 3

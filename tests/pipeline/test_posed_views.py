@@ -16,7 +16,7 @@ from prosplat import Camera, ProSplat
 from prosplat.convert.distortion import Distortion
 from prosplat.core.image_io import check_images, composite, read_image, read_image_rgba
 from prosplat.eval.demo_scene import raycast
-from prosplat.pipeline.model import near_far_from_cameras
+from prosplat.geometry.rig import near_far_from_cameras
 from prosplat.pipeline.posed_views import (
     load_posed_set,
     load_views,
@@ -83,7 +83,7 @@ def test_library_refuses_uint8_and_0_255_images() -> None:
         model.reconstruct(torch.full((2, 3, 32, 32), 1.2), cams, 1.0, 10.0)
     with pytest.raises(ValueError, match="NaN"):
         check_images(torch.full((2, 3, 4, 4), float("nan")))
-    g = model.reconstruct(torch.rand(2, 3, 32, 32), cams, 1.0, 10.0)
+    g = model.reconstruct(torch.rand(2, 3, 32, 32), cams, 1.0, 10.0, budget="all").gaussians
     with pytest.raises(ValueError, match="uint8"):
         model.render(g, cams[0], u8, cams, enhance=False)
 

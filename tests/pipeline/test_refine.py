@@ -394,7 +394,7 @@ def test_ray_scale_undoes_a_scene_wide_depth_error(scene, error):
     factor brings them back (within 3 % of 1 / error in 60 steps, where per-Gaussian position
     steps do not), and the held-out view gains over refining without it. Off (rate 0 or no
     view_index) it is the plain fit, bitwise."""
-    from prosplat.pipeline.depth_sweep import slide_gaussians
+    from prosplat.geometry.pixel_gaussians import slide_gaussians
 
     images, cams = inputs(scene)
     view_index = torch.arange(2).repeat_interleave(len(scene["start"]) // 2)

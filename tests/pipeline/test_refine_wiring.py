@@ -11,7 +11,9 @@ from prosplat import ProSplat
 from prosplat.cli import build_parser, main
 from prosplat.cli.demo import DemoConfig
 from prosplat.data import load_scene
-from prosplat.eval.generator import evaluate_scene, pick_inputs, refine_label, refine_method
+from prosplat.data.rigs import pick_inputs
+from prosplat.data.scene import resize_views
+from prosplat.eval.generator import evaluate_scene, refine_label, refine_method
 from prosplat.pipeline.model import TRAINED_SIZE
 
 
@@ -35,22 +37,26 @@ def scene_inputs(scene, n=3):
 
 def test_reconstruct_refines_the_pruned_gaussians(scene, model):
     images, cams, near, far = scene_inputs(scene)
-    raw = model.reconstruct(images, cams, near, far)
-    assert len(raw) == 3 * 32 * 32  # unchanged without refinement: pixel-aligned, unpruned
+    raw = model.reconstruct(images, cams, near, far, budget="all").gaussians
+    assert len(raw) == 3 * 32 * 32  # every Gaussian: pixel-aligned, unpruned
     calls = []
-    res = model.reconstruct_refined(
-        images, cams, near, far, steps=4, progress=lambda *a: calls.append(a)
+    res = model.reconstruct(
+        images, cams, near, far, refine_steps=4, progress=lambda *a: calls.append(a)
     )
-    st = res.stats
-    assert st.steps == 4 and len(calls) == 4 and st.pruned_from == len(raw)
+    st = res.refine_stats
+    assert st.steps == 4 and len(calls) == 4 and res.prune_stats["input"] == len(raw)
     assert 0 < st.n_gaussians == len(res.gaussians) <= len(raw)
-    assert st.generator_s > 0 and st.prune_s >= 0
+    assert res.timings["generator"] > 0 and res.timings["prune"] >= 0
+    assert res.timings["refine"] >= st.seconds > 0
     again = model.reconstruct(images, cams, near, far, refine_steps=4)
-    assert torch.equal(again.means, res.gaussians.means)  # same seed, same Gaussians
+    assert torch.equal(again.gaussians.means, res.gaussians.means)  # same seed, same Gaussians
     timed = model.reconstruct(images, cams, near, far, refine_seconds=0.2)
-    assert len(timed) == len(again)
-    assert len(model.reconstruct(images, cams, near, far, refine_steps=0)) == len(raw)
-    assert len(model.reconstruct(images, cams, near, far, refine_seconds=0)) == len(raw)  # off
+    assert len(timed.gaussians) == len(again.gaussians)
+    pruned = model.reconstruct(images, cams, near, far)  # no refinement: the budget's Gaussians
+    assert pruned.refine_stats is None and pruned.timings["refine"] == 0
+    assert len(pruned.gaussians) == len(res.gaussians)
+    zero = model.reconstruct(images, cams, near, far, refine_steps=0)  # refines 0 steps
+    assert zero.refine_stats.steps == 0 and len(zero.gaussians) == len(pruned.gaussians)
 
 
 def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
@@ -58,7 +64,7 @@ def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
 ):
     """The shipped weights were trained at up to T = 128 px: given 2T-px inputs, the pipeline
     matches on them resized to T px and places one Gaussian per 2T-px input pixel
-    (:meth:`ProSplat.generate`; with ``full_res_gaussians`` off, a quarter of them, at T px);
+    (:meth:`ProSplat.reconstruct`; with ``full_res_gaussians`` off, a quarter of them, at T px);
     the Gaussians render at 2T px, and refinement fits the 2T-px inputs.
     ``generator_height=0`` runs it all at the inputs' size; a saved model keeps its trained
     size."""
@@ -68,39 +74,39 @@ def test_the_generator_runs_at_its_trained_size_and_refinement_at_the_inputs(
     big = load_scene(folder)
     images, cams, near, far = scene_inputs(big)
     assert model.trained_size == t == 128
-    small, small_cams = model.generator_views(images, cams)
-    assert small.shape[-2:] == (t, t) and (small_cams[0].width, small_cams[0].height) == (t, t)
-    assert torch.equal(small_cams[0].center, cams[0].center)  # same camera, scaled intrinsics
     assert model.depth_sweep is not None  # on by default; off here to compare raw depths
     sweep, model.depth_sweep = model.depth_sweep, None
     try:
-        out, out_cams = model.generate(images, cams, near, far)
+        out = model.reconstruct(images, cams, near, far, budget="all")
     finally:
         model.depth_sweep = sweep
-    assert out.depths.shape[-2:] == (2 * t, 2 * t) and out_cams == cams
-    matched = model.reconstruct_full(small, small_cams, near, far).depths[0]
+    assert out.depths.shape[-2:] == (2 * t, 2 * t) and out.cameras == cams
+    small, small_cams = resize_views(images, cams, t)  # what the generator matches on
+    matched = model.run_generator(small, small_cams, near, far).depths[0]
     up = torch.nn.functional.interpolate(1 / matched[:, None], size=(2 * t, 2 * t), mode="bilinear")
-    assert torch.allclose(1 / out.depths[0], up[:, 0], rtol=1e-4)  # matched at T px
-    swept, _ = model.generate(images, cams, near, far)  # the sweep moves depth, not the layout
+    assert torch.allclose(1 / out.depths, up[:, 0], rtol=1e-4)  # matched at T px
+    swept = model.reconstruct(images, cams, near, far, budget="all")  # depth moves, not layout
     assert swept.depths.shape == out.depths.shape and not torch.equal(swept.depths, out.depths)
-    assert len(model.reconstruct(images, cams, near, far)) == 3 * 4 * t * t
-    native = model.reconstruct(images, cams, near, far, generator_height=0)
-    assert len(native) == 3 * 4 * t * t and not torch.allclose(native.means, out.means[0])
-    res = model.reconstruct_refined(images, cams, near, far, steps=3)
-    assert res.stats.pruned_from == 3 * 4 * t * t
+    assert len(swept.gaussians) == 3 * 4 * t * t
+    native = model.reconstruct(images, cams, near, far, budget="all", generator_height=0)
+    assert len(native.gaussians) == 3 * 4 * t * t
+    assert not torch.allclose(native.gaussians.means, out.gaussians.means)
+    res = model.reconstruct(images, cams, near, far, refine_steps=3)
+    assert res.prune_stats["input"] == 3 * 4 * t * t
     model.full_res_gaussians = False
     try:
-        low, low_cams = model.generate(images, cams, near, far)
-        assert low.depths.shape[-2:] == (t, t) and low_cams[0].height == t
-        assert len(model.reconstruct(images, cams, near, far)) == 3 * t * t
+        low = model.reconstruct(images, cams, near, far, budget="all")
+        assert low.depths.shape[-2:] == (t, t) and len(low.gaussians) == 3 * t * t
+        assert (low.cameras[0].width, low.cameras[0].height) == (t, t)
+        assert torch.equal(low.cameras[0].center, cams[0].center)  # scaled intrinsics only
     finally:
         model.full_res_gaussians = True
     from prosplat.render import render
 
     assert render(res.gaussians, cams[0]).rgb.shape[-2:] == (2 * t, 2 * t)
     # inputs already at or below the trained size are left as they are
-    same, _ = model.generator_views(small, small_cams)
-    assert same is small
+    same = model.reconstruct(small, small_cams, near, far, budget="all")
+    assert same.cameras == small_cams and same.depths.shape[-2:] == (t, t)
     path = ProSplat(model.config, trained_size=96).save(
         tmp_path_factory.mktemp("w") / "g.safetensors"
     )

@@ -22,13 +22,15 @@ from prosplat.train.common import (
     CheckpointError,
     draw_count,
     load_checkpoint,
+    lr_at,
     pick_device,
     save_checkpoint,
     setup_distributed,
     step_indices,
     weights_step,
 )
-from prosplat.train.generator import TrainConfig, lr_at, parse_inputs, train
+from prosplat.train.generator import train
+from prosplat.train.generator_config import TrainConfig, parse_inputs
 
 
 @pytest.fixture(scope="module")
@@ -76,8 +78,8 @@ def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
     sc_images = torch.rand(2, 3, 32, 32)
     from prosplat.eval.demo_scene import orbit_cameras
 
-    g = pipe.reconstruct(sc_images, orbit_cameras(2, 32, 32), near=0.5, far=10.0)
-    assert len(g) == 2 * 32 * 32
+    g = pipe.reconstruct(sc_images, orbit_cameras(2, 32, 32), near=0.5, far=10.0, budget="all")
+    assert len(g.gaussians) == 2 * 32 * 32
     # Resume: the same command with more steps continues from step 3, not from scratch.
     more = TrainConfig(**{**cfg.__dict__, "steps": 5})
     train(more, progress=False)
@@ -483,7 +485,8 @@ def test_grow_fine_matching_starts_from_the_init_and_resumes(dataset, tmp_path):
 def test_render_loss_fused_projection_matches_the_torch_projection(dataset):
     """Training renders with the fused C++ projection (faster); the loss and every gradient
     are those of the torch projection, its reference twin, to float32 precision."""
-    from prosplat.train.generator import _model_inputs, render_loss
+    from prosplat.train.batches import model_inputs
+    from prosplat.train.losses import render_loss
 
     torch.manual_seed(0)
     model = ProSplat().generator.train()
@@ -495,7 +498,7 @@ def test_render_loss_fused_projection_matches_the_torch_projection(dataset):
     results = []
     for backend in ("cpu", "cpu-fused"):
         model.zero_grad(set_to_none=True)
-        loss, parts = render_loss(model(*_model_inputs(batch)), batch, cfg, cpu_backend=backend)
+        loss, parts = render_loss(model(*model_inputs(batch)), batch, cfg, cpu_backend=backend)
         loss.backward()
         grads = {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}
         results.append((loss.detach(), parts, grads))
@@ -516,7 +519,8 @@ def test_render_loss_is_the_mean_of_per_camera_losses(dataset, fill):
     from prosplat import render
     from prosplat.metrics import LPIPS, ssim
     from prosplat.render.hole_fill import fill_holes
-    from prosplat.train.generator import _model_inputs, batch_cameras, render_loss
+    from prosplat.train.batches import batch_cameras, model_inputs
+    from prosplat.train.losses import render_loss
 
     torch.manual_seed(0)
     model = ProSplat().generator.eval()
@@ -529,7 +533,7 @@ def test_render_loss_is_the_mean_of_per_camera_losses(dataset, fill):
     lpips_fn = LPIPS()
     holes = 0.0  # the summed squared change the fill makes, to show it had holes to fill
     with torch.no_grad():
-        output = model(*_model_inputs(batch))
+        output = model(*model_inputs(batch))
         loss, parts = render_loss(output, batch, cfg, lpips_fn=lpips_fn, cpu_backend="cpu")
         want = dict.fromkeys(("mse", "lpips", "ssim", "depth", "input_mse"), 0.0)
         for b in range(2):
@@ -628,7 +632,7 @@ def test_depth_ce_is_the_cross_entropy_with_a_two_hot_of_the_true_inverse_depth(
     its inverse depth (so the target's expectation is that depth), the loss is the mean
     cross-entropy over those cells (its gradient softmax - target), and sky or silhouette cells
     (depths 0 or more than 5 % apart in the cell) do not count."""
-    from prosplat.train.generator import depth_ce
+    from prosplat.train.losses import depth_ce
 
     d, near, far = 8, torch.tensor([1.0]), torch.tensor([10.0])
     cand = torch.linspace(1 / 1.0, 1 / 10.0, d)  # the head's candidates, near first
@@ -685,7 +689,7 @@ def test_log_depth_loss_is_the_same_at_every_scene_scale():
     """--depth-loss log scores the relative error (a scene scaled by s scores the same), while
     the inverse-depth L1 scales with 1/s; both are 0 for the true depth and reject unknown
     kinds at construction."""
-    from prosplat.train.generator import depth_error
+    from prosplat.train.losses import depth_error
 
     gt = torch.tensor([1.0, 2.0, 4.0, 8.0])
     pred = gt * torch.tensor([1.5, 0.5, 1.0, 2.0])
@@ -732,7 +736,7 @@ def test_frame_window_draws_every_other_shape_inside_the_frame():
     refused."""
     import random
 
-    from prosplat.train.generator import frame_window
+    from prosplat.train.batches import frame_window
 
     rng = random.Random(0)
     shapes = set()
@@ -755,7 +759,7 @@ def test_framed_steps_crop_inputs_and_targets_with_their_cameras(tmp_path):
     of another shape, and each cropped pixel's depth unprojects through the shifted intrinsics
     to the same world point as in the full frame; training on framed steps runs."""
     from prosplat.data import SceneDataset
-    from prosplat.train.generator import _step_view, batch_cameras
+    from prosplat.train.batches import batch_cameras, step_view
 
     root = tmp_path / "data96"
     write_synthetic_scene(root / "scene", size=96, n_views=4)
@@ -764,7 +768,7 @@ def test_framed_steps_crop_inputs_and_targets_with_their_cameras(tmp_path):
     base = dict(data=str(root), targets=1, inputs=2, lpips_weight=0.0, log_every=1, sizes="96")
     cfg = TrainConfig(**base, out=str(tmp_path / "run"), steps=2, frame_prob=1.0)
     for step in range(6):
-        out = _step_view(batch, cfg, step)
+        out = step_view(batch, cfg, step)
         h, w = out["input_images"].shape[-2:]
         assert (h, w) != (96, 96) and out["target_depths"].shape[-2:] == (h, w)
         full = batch_cameras(batch["input_K"][0], batch["input_w2c"][0], 96, 96)[0]
@@ -779,7 +783,7 @@ def test_framed_steps_crop_inputs_and_targets_with_their_cameras(tmp_path):
             batch["input_images"][0, 0, :, r0, c0], out["input_images"][0, 0, :, row, col]
         )
     unframed = TrainConfig(**base, out=str(tmp_path / "none"), steps=1)
-    assert _step_view(batch, unframed, 0)["input_images"].shape[-2:] == (96, 96)
+    assert step_view(batch, unframed, 0)["input_images"].shape[-2:] == (96, 96)
     train(cfg, progress=False)
     rec = json.loads((tmp_path / "run" / "log.jsonl").read_text().splitlines()[-1])
     assert math.isfinite(rec["loss"]) and rec["step"] == 2

@@ -20,7 +20,8 @@ from prosplat.generator.depthsplat.config import SMALL
 from prosplat.generator.depthsplat.load import CONFIG_KEY, PREFIX
 from prosplat.train.common import weights_step
 from prosplat.train.depthsplat_heads import TRAINABLE, finetuned_path, load_for_tuning
-from prosplat.train.generator import TrainConfig, train
+from prosplat.train.generator import train
+from prosplat.train.generator_config import TrainConfig
 
 NAME = "depthsplat-gs-small-re10k-256x256-view2-cfeab6b1.pth"
 
@@ -90,7 +91,7 @@ def test_fine_tune_trains_only_the_heads_writes_a_loadable_pth_and_resumes(
     model = ProSplat.from_pretrained(generator=result, improve=False)
     cams = orbit_cameras(2, 32, 32)
     g = model.reconstruct(torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0)),
-                          cams, near=0.5, far=10.0)  # fmt: skip
+                          cams, near=0.5, far=10.0, budget="all").gaussians  # fmt: skip
     assert len(g) == 2 * 32 * 32
     view = model.render(g, orbit_cameras(3, 32, 32)[1], enhance=False)
     assert torch.isfinite(view.image).all() and float(view.image.std()) > 0

@@ -13,7 +13,8 @@ from torch import nn
 from prosplat import ProSplat
 from prosplat.core.checkpoints import read_checkpoint
 from prosplat.train.ema import WeightAverage
-from prosplat.train.generator import TrainConfig, train
+from prosplat.train.generator import train
+from prosplat.train.generator_config import TrainConfig
 
 
 class _Net(nn.Module):

@@ -78,7 +78,7 @@ def test_curation_renders_smaller_splats_as_render_view_draws_them(setup) -> Non
     """``splat_scale``: the stored render and alpha are the Gaussians drawn at that multiple
     of their scales, what ``render_view(..., splat_scale=)`` gives the model at run time."""
     from prosplat.data import load_scene
-    from prosplat.eval.generator import pick_inputs
+    from prosplat.data.rigs import pick_inputs
     from prosplat.pipeline.enhance import render_view
     from prosplat.train.curate import curate_scene
 
@@ -89,16 +89,16 @@ def test_curation_renders_smaller_splats_as_render_view_draws_them(setup) -> Non
     plain = curate_scene(model, scene, [2], max_splat_radius=None)
     idx = pick_inputs(scene, 2)
     cams = [scene.cameras[i] for i in idx]
-    full, _ = model.generate(scene.images[idx], cams, float(scene.near[idx].min()),
-                             float(scene.far[idx].max()))  # fmt: skip
+    full = model.reconstruct(scene.images[idx], cams, float(scene.near[idx].min()),
+                             float(scene.far[idx].max()), budget="all")  # fmt: skip
     t = scene.target_indices[0]
     # with the inputs, as the pipeline renders: the colour favours MORI's pick
     images = scene.images[idx]
-    view = render_view(full.gaussians(0), scene.cameras[t], images, cams, splat_scale=0.5)
+    view = render_view(full.gaussians, scene.cameras[t], images, cams, splat_scale=0.5)
     assert torch.allclose(small["render"][0].float(), view.raw, atol=1e-3)
     alike = curate_scene(model, scene, [2], splat_scale=0.5, max_splat_radius=None,
                          other_views_opacity=1)  # fmt: skip
-    plain_view = render_view(full.gaussians(0), scene.cameras[t], splat_scale=0.5)
+    plain_view = render_view(full.gaussians, scene.cameras[t], splat_scale=0.5)
     assert torch.allclose(alike["render"][0].float(), plain_view.raw, atol=1e-3)
     assert not torch.allclose(alike["render"][0].float(), view.raw, atol=1e-3)
     assert torch.allclose(small["alpha"][0].float(), view.alpha, atol=1e-3)
@@ -110,7 +110,7 @@ def test_curation_leaves_out_oversized_splats_as_an_enhanced_view_does(setup) ->
     view keeps, what ``render_view`` hands stage 2 at run time (a radius small enough that
     the tiny generator's splats are cut on every view)."""
     from prosplat.data import load_scene
-    from prosplat.eval.generator import pick_inputs
+    from prosplat.data.rigs import pick_inputs
     from prosplat.improve.warp import reference_warp
     from prosplat.pipeline.enhance import oversized_splats, render_view
     from prosplat.render import render
@@ -124,9 +124,8 @@ def test_curation_leaves_out_oversized_splats_as_an_enhanced_view_does(setup) ->
     every = curate_scene(model, scene, [2], max_splat_radius=None)
     idx = pick_inputs(scene, 2)
     cams = [scene.cameras[i] for i in idx]
-    full, _ = model.generate(scene.images[idx], cams, float(scene.near[idx].min()),
-                             float(scene.far[idx].max()))  # fmt: skip
-    g = full.gaussians(0)
+    g = model.reconstruct(scene.images[idx], cams, float(scene.near[idx].min()),
+                          float(scene.far[idx].max()), budget="all").gaussians  # fmt: skip
     for k, t in enumerate(scene.target_indices):
         cam = scene.cameras[t]
         cut = oversized_splats(g, cam, radius)

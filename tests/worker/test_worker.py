@@ -315,19 +315,19 @@ def test_cancelled_progress_stops_before_any_output(scene, tmp_path: Path) -> No
 
 def test_reconstruct_refines_from_the_one_pass_gaussians(scene, monkeypatch):
     """Plain and refining reconstructions both ask for the depth sweep's scene-wide factor:
-    refinement starts from the one-pass Gaussians, as ProSplat.reconstruct_refined does."""
+    refinement starts from the one-pass Gaussians, as ProSplat.reconstruct does."""
     from prosplat.pipeline.model import ProSplat
 
     folder, cams = scene
     params = {"frames": _frames(folder, cams, [0, 2]), "device": "cpu", "near": 0.5, "far": 10.0}
     asked: list[bool] = []
-    real = ProSplat.reconstruct_pruned
+    real = ProSplat.reconstruct
 
     def spy(self, *args, **kwargs):
         asked.append(kwargs.get("depth_scale", True))
         return real(self, *args, **kwargs)
 
-    monkeypatch.setattr(ProSplat, "reconstruct_pruned", spy)
+    monkeypatch.setattr(ProSplat, "reconstruct", spy)
     run_task("reconstruct", params)
     run_task("reconstruct", {**params, "refine_steps": 2})
     run_task("reconstruct", {**params, "refine_seconds": 0.2})

@@ -144,7 +144,8 @@ def _run_pipeline(model, plan: Run, dtypes: Sequence[torch.dtype]) -> dict:
     from prosplat.geometry.budget import prune_pixel_aligned
     from prosplat.metrics import psnr
 
-    out, _ = model.generate(plan.images, plan.cameras, plan.near, plan.far, height=0)
+    # the network and its depth sweep, unchecked: a NaN is reported here, where Gaussians raise
+    out = model.run_generator(plan.images, plan.cameras, plan.near, plan.far, sweep=True)
     named = {
         f"generator.{k}": getattr(out, k)
         for k in ("means", "quats", "scales", "opacities", "sh", "depths", "confidence")
@@ -226,7 +227,7 @@ def _run_case(model, case: str, s: CaseScene, dtypes: Sequence[torch.dtype]) -> 
         errors, clear, bad, notes = [], True, [], [plan.note] if plan.note else []
         for label, near, far in plan.attempts:
             try:
-                out, _ = model.generate(plan.images, plan.cameras, near, far, height=0)
+                out = model.run_generator(plan.images, plan.cameras, near, far, sweep=True)
             except Exception as exc:
                 errors.append(f"[{label}] {_describe(exc)}")
                 clear &= _is_clear(exc, plan.words)
@@ -389,7 +390,7 @@ def run(args: argparse.Namespace) -> int:
     """``prosplat bench hard``: 0 when every case is ok, 1 when any is not, 2 on bad options."""
     import sys
 
-    from prosplat.core.paths import fresh_folder
+    from prosplat.core.paths import fresh_folder, staged_folder
     from prosplat.data import find_scenes, load_scene
     from prosplat.pipeline.model import ProSplat
 
@@ -434,11 +435,11 @@ def run(args: argparse.Namespace) -> int:
         f"{torch.get_num_threads()} threads).\n\n"
     )
     out = fresh_folder(args.out, args.overwrite)
-    out.mkdir(parents=True, exist_ok=True)
     summary = hard_case_summary(results)
     print(summary)
-    (out / "hard_cases.md").write_text(header + summary + "\n\n" + table + "\n")
     rows = [dict(asdict(r), ok=r.ok) for r in results]
-    (out / "hard_cases.json").write_text(json.dumps(rows, indent=1) + "\n")
+    with staged_folder(out) as partial:  # moved to --out only when complete
+        (partial / "hard_cases.md").write_text(header + summary + "\n\n" + table + "\n")
+        (partial / "hard_cases.json").write_text(json.dumps(rows, indent=1) + "\n")
     print(f"wrote {out / 'hard_cases.md'} and hard_cases.json ({seconds:.0f} s)")
     return 0 if all(r.ok for r in results) else 1

@@ -99,7 +99,7 @@ def _scene_name(scene: SceneData) -> str:
 
 
 def prepare(scene: SceneData, n_targets: int) -> CaseScene:
-    from prosplat.eval.generator import pick_inputs
+    from prosplat.data.rigs import pick_inputs
 
     a, b = pick_inputs(scene, 2)
     near, far = float(scene.near[[a, b]].min()), float(scene.far[[a, b]].max())

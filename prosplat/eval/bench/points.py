@@ -381,7 +381,7 @@ def _load(args: argparse.Namespace, axes: Axes) -> list[tuple[str, SceneData]]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from prosplat.core.paths import fresh_folder
+    from prosplat.core.paths import fresh_folder, staged_folder
     from prosplat.pipeline.model import ProSplat
 
     try:
@@ -425,15 +425,15 @@ def run(args: argparse.Namespace) -> int:
         points=[asdict(p) for p in points + refs],
     )
     out = fresh_folder(args.out, args.overwrite)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "points.json").write_text(
-        json.dumps(dict(meta=meta, rows=rows, summary=summary), indent=1)
-    )
     header = (
         f"Speed against error ({meta['machine']}, torch {meta['torch']}, {meta['threads']} threads)"
     )
-    (out / "points.md").write_text(f"{header}\n\n{table}\n")
-    pareto.plot(summary, out / "pareto.png", header)
+    with staged_folder(out) as partial:  # moved to --out only when complete
+        (partial / "points.json").write_text(
+            json.dumps(dict(meta=meta, rows=rows, summary=summary), indent=1)
+        )
+        (partial / "points.md").write_text(f"{header}\n\n{table}\n")
+        pareto.plot(summary, partial / "pareto.png", header)
     print(table)
     print(f"wrote {out / 'points.md'}, points.json and pareto.png ({meta['seconds']} s)")
     return 0

@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "evaluation size); its Gaussians render at the evaluation size")  # fmt: skip
     parser.add_argument("--low-res-gaussians", action="store_true",
                         help="the generator's Gaussians at the size it runs at, not at the "
-                        "evaluation size (the pipeline before 2026-11-24; ProSplat.generate)")  # fmt: skip
+                        "evaluation size (the pipeline before 2026-11-24; ProSplat.full_res_gaussians)")  # fmt: skip
     parser.add_argument("--no-depth-sweep", action="store_true",
                         help="the generator's depth as it predicts it, without the local plane "
                         "sweep that moves it to where the inputs match (prosplat.pipeline.depth_sweep; "
@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from prosplat.core.paths import fresh_folder
+    from prosplat.core.paths import fresh_folder, staged_folder
     from prosplat.data import find_scenes, load_scene
     from prosplat.eval.ladder import report
     from prosplat.eval.ladder.run import evaluate_scene, warm_up
@@ -237,11 +237,11 @@ def run(args: argparse.Namespace) -> int:
         f"{meta['seconds']:.0f} s.\n\n"
     )
     out = fresh_folder(args.out, args.overwrite)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "ladder.md").write_text(header + table)
-    report.write_csv(summary, out / "ladder.csv")
-    report.write_json(scores, summary, meta, out / "ladder.json", deltas)
-    report.plot(summary, out / "speed.png", f"evaluation ladder ({machine})")
+    with staged_folder(out) as partial:  # moved to --out only when complete
+        (partial / "ladder.md").write_text(header + table)
+        report.write_csv(summary, partial / "ladder.csv")
+        report.write_json(scores, summary, meta, partial / "ladder.json", deltas)
+        report.plot(summary, partial / "speed.png", f"evaluation ladder ({machine})")
     print(table)
     print(f"wrote {out / 'ladder.md'}, ladder.csv, ladder.json and speed.png")
     return 0

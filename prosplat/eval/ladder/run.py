@@ -18,11 +18,12 @@ import torch
 from torch import Tensor
 
 from prosplat.core.camera import Camera
+from prosplat.data.rigs import pick_inputs
 from prosplat.data.scene import SceneData, resize_views
-from prosplat.eval.generator import abs_rel, pick_inputs
 from prosplat.eval.ladder.geometry import resize_depths, valid_mask
 from prosplat.eval.ladder.rungs import Rung, SceneInputs, View
 from prosplat.eval.ladder.stats import overlap_bin
+from prosplat.metrics.depth import abs_rel
 
 
 @dataclass

@@ -275,7 +275,7 @@ def _generator_gaussians(ctx: LadderContext) -> Callable[[SceneInputs], Any]:
     size), pruned by the budget; they render at the evaluation size."""
 
     def reconstruct(inp: SceneInputs):
-        return ctx.model.reconstruct_pruned(
+        return ctx.model.reconstruct(
             inp.images, inp.cameras, inp.near, inp.far, budget=ctx.options.get("budget"),
             generator_height=ctx.options.get("generator_size"),
         ).gaussians  # fmt: skip
@@ -439,9 +439,9 @@ def _refined_gaussians(
     ``seconds``."""
 
     def reconstruct(inp: SceneInputs):
-        return ctx.model.reconstruct_refined(
-            inp.images, inp.cameras, inp.near, inp.far, steps=steps, seconds=seconds,
-            budget=ctx.options.get("budget"),
+        return ctx.model.reconstruct(
+            inp.images, inp.cameras, inp.near, inp.far, refine_steps=steps,
+            refine_seconds=seconds, budget=ctx.options.get("budget"),
             generator_height=ctx.options.get("generator_size"),
         ).gaussians  # fmt: skip
 
@@ -581,6 +581,6 @@ def depthsplat_rungs(ctx: LadderContext) -> list[Rung]:
     model = ProSplat.from_pretrained(generator=path, improve=False)
 
     def reconstruct(inp: SceneInputs):
-        return model.reconstruct(inp.images, inp.cameras, inp.near, inp.far)
+        return model.reconstruct(inp.images, inp.cameras, inp.near, inp.far, budget="all").gaussians
 
     return [Rung("DepthSplat", reconstruct, splat_view, depth=True)]

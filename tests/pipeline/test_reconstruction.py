@@ -1,0 +1,121 @@
+"""``ProSplat.reconstruct``: one call, one :class:`prosplat.Reconstruction`, whatever the
+options, holding the same Gaussians as the steps it is made of run one by one (the generator
+and its depth sweep, the budget, refinement)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+
+from prosplat import ProSplat, Reconstruction, render
+from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians
+from prosplat.geometry.budget import prune_pixel_aligned
+from prosplat.pipeline.refine import refine
+
+NEAR, FAR = 1.0, 8.0
+
+
+@pytest.fixture(scope="module")
+def model():
+    return ProSplat.from_pretrained(improve=False)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """Three 32-px input views of the analytic demo scene and one target camera between them."""
+    cams = orbit_cameras(5, 32, 32, arc_deg=60.0)
+    truth = pixel_aligned_gaussians(cams)
+    images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)  # [5,3,32,32]
+    inputs = [0, 2, 4]
+    return images[inputs], [cams[i] for i in inputs], cams[1]
+
+
+def assert_same_gaussians(a, b) -> None:
+    ta, tb = a.tensors(), b.tensors()
+    assert ta.keys() == tb.keys()
+    for name, t in ta.items():
+        assert torch.equal(t, tb[name]), name
+
+
+def test_budget_all_is_every_gaussian_of_the_generator_in_view_major_order(model, scene):
+    images, cams, _ = scene
+    rec = model.reconstruct(images, cams, NEAR, FAR, budget="all", generator_height=0)
+    assert isinstance(rec, Reconstruction)
+    out = model.run_generator(images, cams, NEAR, FAR, sweep=True)  # the network + its sweep
+    assert_same_gaussians(rec.gaussians, out.gaussians(0))
+    assert torch.equal(rec.depths, out.depths[0])
+    v, h, w = rec.depths.shape
+    assert len(rec.gaussians) == v * h * w == 3 * 32 * 32
+    assert torch.equal(rec.view_index, torch.arange(v).repeat_interleave(h * w))
+    assert torch.equal(rec.gaussians.views, rec.view_index)
+    assert rec.cameras == cams  # inputs at or below the trained size run as they are
+    assert rec.prune_stats["input"] == rec.prune_stats["kept"] == len(rec.gaussians)
+    assert rec.refine_stats is None
+    assert set(rec.timings) == {"generator", "prune", "refine"}
+    assert rec.timings["generator"] > 0 and rec.timings["prune"] == rec.timings["refine"] == 0
+
+
+def test_the_default_budget_prunes_the_generators_gaussians(model, scene):
+    images, cams, _ = scene
+    # the scene-wide depth factor is left out so the budget's input is the unpruned set
+    full = model.reconstruct(images, cams, NEAR, FAR, budget="all", depth_scale=False)
+    rec = model.reconstruct(images, cams, NEAR, FAR, depth_scale=False)
+    g, keep, stats = prune_pixel_aligned(full.gaussians, full.depths, full.cameras)
+    assert rec.prune_stats == stats and 0 < stats["kept"] < stats["input"]
+    assert_same_gaussians(rec.gaussians, g)
+    assert torch.equal(rec.view_index, full.view_index[keep])
+    assert torch.equal(rec.depths, full.depths) and rec.cameras == full.cameras
+    v, h, w = rec.depths.shape
+    assert v == len(rec.cameras) == 3 and (h, w) == (rec.cameras[0].height, rec.cameras[0].width)
+    assert rec.depths_for(images) is rec.depths
+    assert len(model.reconstruct(images, cams, NEAR, FAR, budget=500).gaussians) == 500
+    assert len(model.reconstruct(images, cams, NEAR, FAR, budget=0.25).gaussians) == 768
+
+
+def test_refinement_starts_from_the_budget_and_fills_stats_and_timings(model, scene):
+    images, cams, _ = scene
+    start = model.reconstruct(images, cams, NEAR, FAR)
+    rec = model.reconstruct(images, cams, NEAR, FAR, refine_steps=3, seed=1)
+    want = refine(
+        start.gaussians, images, cams, steps=3, seed=1, depths=start.depths_for(images),
+        view_index=start.view_index,
+    )  # fmt: skip
+    assert_same_gaussians(rec.gaussians, want.gaussians)
+    assert rec.refine_stats.steps == 3 and rec.refine_stats.n_gaussians == len(start.gaussians)
+    assert rec.prune_stats == start.prune_stats and torch.equal(rec.depths, start.depths)
+    assert torch.equal(rec.view_index, start.view_index)
+    assert rec.timings["refine"] >= rec.refine_stats.seconds > 0
+    assert rec.timings["generator"] > 0 and rec.timings["prune"] > 0
+
+
+def test_grad_and_budget_refusals(model, scene):
+    images, cams, _ = scene
+    rec = model.reconstruct(images, cams, NEAR, FAR, budget="all", grad=True, generator_height=0)
+    assert rec.gaussians.means.requires_grad
+    assert not model.reconstruct(
+        images, cams, NEAR, FAR, budget="all"
+    ).gaussians.means.requires_grad
+    with pytest.raises(ValueError, match="budget='all'"):
+        model.reconstruct(images, cams, NEAR, FAR, grad=True)
+    with pytest.raises(ValueError, match="budget='all'"):
+        model.reconstruct(images, cams, NEAR, FAR, budget="all", grad=True, refine_steps=2)
+    with pytest.raises(ValueError, match="'all'"):
+        model.reconstruct(images, cams, NEAR, FAR, budget="half")
+    with pytest.raises(ValueError, match="seconds must be a finite number > 0"):
+        model.reconstruct(images, cams, NEAR, FAR, refine_seconds=0)
+
+
+def test_render_takes_a_reconstruction_and_knows_its_cameras(model, scene):
+    images, cams, target = scene
+    rec = model.reconstruct(images, cams, NEAR, FAR)
+    given = model.render(rec.gaussians, target, images, cams, enhance=False, fill_holes=True)
+    known = model.render(rec, target, images, enhance=False, fill_holes=True)
+    assert torch.equal(known.image, given.image)
+    # cameras at the generator's smaller size are brought to the images' size
+    half = replace(rec, cameras=[c.resized(16, 16) for c in rec.cameras])
+    again = model.render(half, target, images, enhance=False, fill_holes=True)
+    assert torch.equal(again.image, given.image)
+    with pytest.raises(TypeError, match="fill_hole"):
+        model.render(rec, target, images, enhance=False, fill_hole=True)
