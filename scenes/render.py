@@ -353,11 +353,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def serve_jobs(lines, render_one) -> None:
     """Render each ``NAME SEED`` line with ``render_one(name, seed)`` and print one answer
-    line per job (:mod:`scenes.jobs`; blank lines are skipped). A scene that raises is
+    line per job (:mod:`prosplat.data.render_jobs`; blank lines are skipped). A scene that raises is
     reported and the worker goes on with the next one."""
     import traceback
 
-    from scenes.jobs import answer_line
+    from prosplat.data.render_jobs import answer_line
 
     for line in lines:
         if not line.strip():

@@ -11,13 +11,17 @@
 # Prints the size the call will carry: tracked files + .gpu_gen must stay under 64 MiB.
 #   [DATA=data/gen_v6] [MAX_MB=17] scripts/gpu_generator_prepare.sh
 # DATA: the scene folders to draw from (default: the shipped generator's 420 training scenes,
-# scripts/train_generator_v6.sh's data/gen_v6), as many as fit MAX_MB of packs, spread evenly
+# generator-tiny's stages v6-v16 in prosplat.train.recipes, linked into data/gen_v6 from
+# data/train128 by `prosplat scenes subset`), as many as fit MAX_MB of packs, spread evenly
 # over the sorted names. The packs are made again when these change.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
 P=${PROSPLAT:-.venv/bin/prosplat}
-DATA=${DATA:-data/gen_v6}
+if [ -z "${DATA:-}" ]; then
+  DATA=data/gen_v6
+  "$P" scenes subset --data data/train128 --seeds "10000-10359 hard:0-4" --out "$DATA"
+fi
 MAX_MB=${MAX_MB:-17}
 G=.gpu_gen
 S=data/gpu_gen_scenes  # the subset, as links (data/ is ignored)

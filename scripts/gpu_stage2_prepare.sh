@@ -10,8 +10,8 @@
 # Prints the size the call will carry: tracked files + .gpu + .whl must stay under 64 MiB
 # (about 200 scenes with today's 25 MiB tree).
 #   [SCENES="FIRST-LAST ..."] scripts/gpu_stage2_prepare.sh
-# SCENES: seed ranges of data/train128 (scripts/scene_subset.sh), default v18's 160 scenes:
-# "10000-10135 $(hard_rounds 2)".
+# SCENES: seed ranges of data/train128 (`prosplat scenes subset --seeds`; hard:A-B are the hard
+# scenes of render rounds A-B), default v18's 160 scenes: "10000-10135 hard:0-1".
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
@@ -26,10 +26,9 @@ version() { "$PY" -c "import importlib.metadata as m; print(m.version('$1'))"; }
   "diffusers==$(version diffusers)" "importlib_metadata==$(version importlib_metadata)" \
   "plyfile==$(version plyfile)"
 "$PY" scripts/gpu_lpips.py pack .gpu
-. scripts/scene_subset.sh
-# shellcheck disable=SC2046  # hard_rounds prints seed ranges
-scene_subset data/gpu_s2_scenes "${SCENES:-10000-10135 $(hard_rounds 2)}"
-# scene_subset leaves the folder (and its time) alone when the scenes are the same, so a pack
+"$P" scenes subset --data data/train128 --seeds "${SCENES:-10000-10135 hard:0-1}" \
+  --out data/gpu_s2_scenes
+# scenes subset leaves the folder (and its time) alone when the scenes are the same, so a pack
 # newer than it holds these scenes; otherwise the old pack (made from data/ here) is replaced
 if [ -e .gpu/s2_000.npz ] && [ .gpu/s2_000.npz -nt data/gpu_s2_scenes ]; then
   echo "keeping .gpu/s2_*.npz: it packs these scenes"

@@ -5,7 +5,7 @@
 # carry (64 MiB with the working tree), so the call carries the scenes instead, as a depth-free pack
 # (`prosplat scenes pack --no-depth`, ~0.15-0.17 MB a scene), and curates them there: SHARDS
 # processes of one thread per set (`train curate --first/--count`), raw64 (2/3/4/6 inputs) and
-# raw128 (2/4) as scripts/curate_stage2_sets.sh makes them, with the shipped generator and its
+# raw128 (2/4) as stage 2 v18's sets (prosplat.train.recipes), with the shipped generator and its
 # depth sweep. Then `prosplat train improve --device cuda` from the shipped stage 2 with the
 # options given, for as many steps as the time left allows: a short probe run measures the
 # step time first, so the cosine schedule ends where the budget does.

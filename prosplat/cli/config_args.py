@@ -93,9 +93,7 @@ def add_config_arguments(
             kind, more = _option_type(hints[f.name])
             spec = {"type": kind, **more, **spec}
         required = not has_default and f.name not in optional
-        parser.add_argument(
-            flag, dest=f.name, default=default, required=required, help=doc, **spec
-        )
+        parser.add_argument(flag, dest=f.name, default=default, required=required, help=doc, **spec)
 
 
 def config_from_args(cls: type, args: argparse.Namespace, **given: Any):

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from prosplat.cli import improve
+from prosplat.cli import eval_posed, improve
 from prosplat.cli.options import add_refine_arguments
 from prosplat.eval import posed
 from prosplat.eval.ladder import cli as ladder_cli
@@ -122,8 +122,8 @@ def add_parser(sub) -> None:
         description=posed.__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    posed.add_arguments(ep)
-    ep.set_defaults(func=posed.run)
+    eval_posed.add_arguments(ep)
+    ep.set_defaults(func=eval_posed.run)
     el = ev_sub.add_parser(
         "ladder",
         help="every ladder row (flat, paste, optimisation, generator, enhanced, true depth) "

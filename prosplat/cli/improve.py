@@ -1,7 +1,8 @@
 """The stage-2 subcommands: ``prosplat train curate|improve|joint|blend`` and ``prosplat eval improve``.
 
-Kept apart from :mod:`prosplat.cli` so each file stays small; ``cli.build_parser`` calls
-:func:`add_train_parsers` and :func:`add_eval_parser`.
+:mod:`prosplat.cli.train` and :mod:`prosplat.cli.eval` add them with :func:`add_train_parsers`
+and :func:`add_eval_parser`. ``train improve`` and ``train joint`` take their options from
+their config dataclasses (:mod:`prosplat.cli.config_args`).
 """
 
 from __future__ import annotations
@@ -9,27 +10,12 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from dataclasses import fields
 from pathlib import Path
 
-
-def _add_config_args(parser: argparse.ArgumentParser, cls, skip: set[str]) -> None:
-    """One ``--option`` per dataclass field with its default (bools become --flag/--no-flag)."""
-    defaults = cls(**{f.name: "" for f in fields(cls) if f.name in skip})
-    for f in fields(cls):
-        if f.name in skip:
-            continue
-        value = getattr(defaults, f.name)
-        flag = f"--{f.name.replace('_', '-')}"
-        if isinstance(value, bool):
-            parser.add_argument(
-                flag, dest=f.name, action=argparse.BooleanOptionalAction, default=value
-            )
-        else:
-            kind = type(value) if value is not None else str
-            parser.add_argument(
-                flag, dest=f.name, type=kind, default=value, help=f"(default {value})"
-            )
+from prosplat.cli import recipes
+from prosplat.cli.config_args import add_config_arguments, config_from_args
+from prosplat.pipeline.enhance import MAX_SPLAT_RADIUS, OTHER_VIEWS_OPACITY
+from prosplat.train.improve import ImproveTrainConfig, JointTrainConfig
 
 
 def cmd_curate(args: argparse.Namespace) -> int:
@@ -39,7 +25,9 @@ def cmd_curate(args: argparse.Namespace) -> int:
     if is_depthsplat_file(args.generator):  # stage 2 trained on DepthSplat's renders (issue 17)
         model = ProSplat.from_pretrained(generator=args.generator, improve=False)
     else:
-        model = ProSplat.from_pretrained(args.generator, improve=False)
+        # depth_sweep None: the pipeline's default (on for prosplat weights)
+        sweep = None if args.depth_sweep else False
+        model = ProSplat.from_pretrained(args.generator, improve=False, depth_sweep=sweep)
     views = [int(v) for v in args.views.split(",")]
     cmd = "prosplat train curate " + " ".join(sys.argv[3:])
     if args.refine_steps < 0:
@@ -68,9 +56,14 @@ def cmd_curate(args: argparse.Namespace) -> int:
 
 
 def cmd_train_improve(args: argparse.Namespace) -> int:
-    from prosplat.train.improve import ImproveTrainConfig, train_improve
+    if args.recipe:
+        return recipes.run_recipe_command(args, ImproveTrainConfig, "train improve")
+    refused = recipes.no_recipe_without_data(args, "train improve")
+    if refused is not None:
+        return refused
+    from prosplat.train.improve import train_improve
 
-    cfg = ImproveTrainConfig(**{f.name: getattr(args, f.name) for f in fields(ImproveTrainConfig)})
+    cfg = config_from_args(ImproveTrainConfig, args)
     path = train_improve(cfg)
     print(f"improvement model: {path.resolve()}")
     # Ctrl-C saves the weights so far and returns; exit as an interrupted command does (130),
@@ -85,9 +78,9 @@ def cmd_train_improve(args: argparse.Namespace) -> int:
 
 
 def cmd_train_joint(args: argparse.Namespace) -> int:
-    from prosplat.train.improve import JointTrainConfig, train_joint
+    from prosplat.train.improve import train_joint
 
-    cfg = JointTrainConfig(**{f.name: getattr(args, f.name) for f in fields(JointTrainConfig)})
+    cfg = config_from_args(JointTrainConfig, args)
     gen, imp = train_joint(cfg)
     print(f"generator: {gen.resolve()}\nimprovement model: {imp.resolve()}")
     return 0
@@ -148,9 +141,7 @@ def cmd_eval_improve(args: argparse.Namespace) -> int:
 
 
 def add_train_parsers(train_sub) -> None:
-    from prosplat.pipeline.enhance import MAX_SPLAT_RADIUS, OTHER_VIEWS_OPACITY
-    from prosplat.train.improve import ImproveTrainConfig, JointTrainConfig
-
+    """``train curate|improve|joint|blend`` into the ``train`` subparsers."""
     cu = train_sub.add_parser(
         "curate",
         help="render curated stage-2 samples with a trained generator",
@@ -227,6 +218,15 @@ def add_train_parsers(train_sub) -> None:
         help="curate at most N scenes: processes sharing a set each take a slice, and "
         "`train improve --data a,b,...` takes the files together",
     )
+    cu.add_argument(
+        "--depth-sweep",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="move the generator's depth to where the inputs match first, as the pipeline "
+        "does (prosplat.pipeline.depth_sweep; on by default for prosplat weights); "
+        "--no-depth-sweep renders the generator's own depth, as sets curated before "
+        "2026-11-26 were",
+    )
     cu.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     cu.set_defaults(func=cmd_curate)
 
@@ -236,11 +236,11 @@ def add_train_parsers(train_sub) -> None:
         description="Independent stage-2 training (MSE + 5 LPIPS) on a file from `prosplat train "
         "curate`. --no-denoise / --no-reference give the ablation rows. Re-running with "
         "the same --out resumes; several GPUs: torchrun --nproc_per_node K -m prosplat "
-        "train improve ...",
+        "train improve ... With --recipe NAME, the stages of a shipped weight's recipe "
+        "instead (prosplat train recipes lists them).",
     )
-    ti.add_argument("--data", required=True, help="curated training file")
-    ti.add_argument("--out", required=True, help="run folder (checkpoints, log.jsonl)")
-    _add_config_args(ti, ImproveTrainConfig, {"data", "out"})
+    add_config_arguments(ti, ImproveTrainConfig, optional=("data", "out"))
+    recipes.add_recipe_arguments(ti, "improve")
     ti.set_defaults(func=cmd_train_improve)
 
     tj = train_sub.add_parser(
@@ -250,9 +250,7 @@ def add_train_parsers(train_sub) -> None:
         "improvement model frozen but its VAE encoder (and decoder unless --no-train-decoder); "
         "loss summed over the target views of one forward pass.",
     )
-    for name in ("data", "out", "generator", "improver"):
-        tj.add_argument(f"--{name}", required=True)
-    _add_config_args(tj, JointTrainConfig, {"data", "out", "generator", "improver"})
+    add_config_arguments(tj, JointTrainConfig)
     tj.set_defaults(func=cmd_train_joint)
 
     bl = train_sub.add_parser(

@@ -1,4 +1,4 @@
-"""``prosplat scenes render|list|pack|subset``: the Blender-rendered synthetic scenes.
+"""``prosplat scenes render|list|pack|sets|subset``: the Blender-rendered synthetic scenes.
 
 ``render`` keeps ``--workers`` Blender processes (``python -m scenes.render --jobs-from-stdin``,
 the repository's scene scripts) and feeds each the next scene over the line protocol of
@@ -8,17 +8,23 @@ the repository's scene scripts) and feeds each the next scene over the line prot
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
 import sys
+import threading
 from pathlib import Path
+from queue import Empty, Queue
 
 from prosplat.cli.options import int_between
+from prosplat.data.render_jobs import read_answer
+from prosplat.data.scene_sets import SCENE_SETS, link_subset, parse_seeds
+from prosplat.data.splits import family_for_seed, split_of
 
 
 def render_worker_command(args: argparse.Namespace) -> list[str]:
     """The command line of one long-lived Blender worker of ``prosplat scenes render``: Cycles
     gets ``--threads`` threads, by default the machine's cores shared by the workers."""
-    import os
-
     threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
     return [
         sys.executable,
@@ -43,14 +49,7 @@ def render_worker_command(args: argparse.Namespace) -> list[str]:
 def cmd_scenes_render(args: argparse.Namespace) -> int:
     """Render scenes ``seed .. seed+count-1`` with ``--workers`` long-lived Blender processes
     (``scenes.render --jobs-from-stdin``), each fed the next missing scene as it finishes one."""
-    import subprocess
-    import threading
-    from queue import Empty, Queue
-
     from tqdm import tqdm
-
-    from prosplat.data.splits import family_for_seed, split_of
-    from prosplat.data.render_jobs import read_answer
 
     if args.count < 1 or args.workers < 1 or args.size < 8 or args.samples < 1:
         print(
@@ -142,8 +141,6 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
 
 def cmd_scenes_list(args: argparse.Namespace) -> int:
     """One line per scene folder: split, family, tags, views and input overlap (for binning)."""
-    import json
-
     from prosplat.data.dataset import find_scenes
 
     folders = find_scenes(args.out)
@@ -197,7 +194,37 @@ def cmd_scenes_pack(args: argparse.Namespace) -> int:
     return 0
 
 
-PLACEHOLDER_SUBSET
+def cmd_scenes_sets(args: argparse.Namespace) -> int:
+    """Print the named scene sets, or the commands that render one (``--seeds``: part of it)."""
+    if args.name is None:
+        for s in SCENE_SETS.values():
+            print(f"{s.name:10s} seeds {s.seeds}: {s.about}")
+        return 0
+    if args.name not in SCENE_SETS:
+        print(
+            f"prosplat scenes sets: no set {args.name!r}; one of {', '.join(SCENE_SETS)}",
+            file=sys.stderr,
+        )
+        return 2
+    try:
+        commands = SCENE_SETS[args.name].render_commands(args.seeds, args.root)
+    except ValueError as e:
+        print(f"prosplat scenes sets: {e}", file=sys.stderr)
+        return 2
+    print("\n".join(commands))
+    return 0
+
+
+def cmd_scenes_subset(args: argparse.Namespace) -> int:
+    """Link the scenes of ``--data`` with the given seeds into ``--out``."""
+    try:
+        seeds = parse_seeds(args.seeds)
+        dest = link_subset(args.data, seeds, args.out)
+    except (ValueError, FileNotFoundError, FileExistsError) as e:
+        print(f"prosplat scenes subset: {e}", file=sys.stderr)
+        return 2
+    print(f"{dest}: links to {len(seeds)} scenes of {args.data}")
+    return 0
 
 
 def add_parser(sub) -> None:
@@ -296,4 +323,33 @@ def add_parser(sub) -> None:
     )
     pk.set_defaults(func=cmd_scenes_pack)
 
-PLACEHOLDER_SUBSET_PARSER
+    st = scenes_sub.add_parser(
+        "sets",
+        help="the named scene sets the shipped weights and the ladder use, and their commands",
+        description="Without NAME, list the named sets (prosplat.data.scene_sets); with it, "
+        "print the `prosplat scenes render` commands that render it (or --seeds of it) into "
+        "ROOT/NAME. The commands skip finished scenes, so a partial set is completed.",
+    )
+    st.add_argument("name", nargs="?", default=None, help="a set, e.g. train128 or test128")
+    st.add_argument(
+        "--seeds",
+        default=None,
+        help="seed ranges, e.g. '10000-10359 hard:0-4' (hard:A-B: the hard scenes of render "
+        "rounds A-B); default: the whole set",
+    )
+    st.add_argument("--root", default="data", help="folder of the sets (default data)")
+    st.set_defaults(func=cmd_scenes_sets)
+    sb = scenes_sub.add_parser(
+        "subset",
+        help="link the scenes of given seeds into a folder, to train on exactly those",
+        description="Make --out a folder of relative links to the scene folders of --data "
+        "whose seeds are in --seeds, made aside and moved into place; a folder that holds "
+        "exactly those links already is left alone, one of other links is replaced. Every "
+        "seed must be rendered.",
+    )
+    sb.add_argument("--data", type=Path, required=True, help="a scene set, e.g. data/train128")
+    sb.add_argument(
+        "--seeds", required=True, help="seed ranges, e.g. '10000-10135 hard:0-1' (see `sets`)"
+    )
+    sb.add_argument("--out", type=Path, required=True, help="the folder of links to make")
+    sb.set_defaults(func=cmd_scenes_subset)

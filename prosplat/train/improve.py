@@ -87,8 +87,8 @@ class ImproveTrainConfig:
     # give the model the reference warped through the rendered depth + its validity (needs
     # sets curated with the warp; prosplat.improve.warp)
     warp: bool = False
-    # fill the render's holes from its own colours before the model sees it (ImproveConfig.
-    # fill_input; needs --alpha). A model trained with it keeps it
+    # fill the render's holes from its own colours before the model sees it
+    # (ImproveConfig.fill_input; needs --alpha). A model trained with it keeps it
     fill: bool = False
     padding: str = ""  # set the convolutions' padding ("zeros" | "replicate"; "": the model's)
     # weight of the shift term: half of each batch is the other half's crops moved 1-7 px, and

@@ -25,7 +25,7 @@ def render_views(
     follows both copies), so a GPU still trains the network. On the CPU the projection is
     the fused C++ kernel (``cpu_backend``): the torch projection computes the same float64
     numbers (the render tests hold them together) through ~100 ops whose autograd cost ~20 %
-    of a training step (``benchmarks/generator_step.py``).
+    of a training step (measured by ``benchmarks/generator_step.py``, in git history).
     """
     from prosplat.render import _gsplat_available
 

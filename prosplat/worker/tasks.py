@@ -120,6 +120,18 @@ def task_read_posed_images(params: dict, progress: Progress) -> dict:
     posed, meta = read_posed_images(params["path"], params.get("images_dir"))
     if not posed:
         raise ValueError(f"{params['path']} holds no cameras")
+    # a frame listed twice is one view: keep the first frame of each image file
+    kept, seen = [], set()
+    for p in posed:
+        if p.image is None or p.image not in seen:
+            kept.append(p)
+        seen.add(p.image)
+    if len(kept) < len(posed):
+        progress.warn(
+            f"left out {len(posed) - len(kept)} frames of {params['path']} that list an image "
+            "an earlier frame lists"
+        )
+        posed = kept
     frames = [
         {
             "name": p.name,

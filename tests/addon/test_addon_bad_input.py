@@ -13,16 +13,11 @@ import pytest
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import data_counts, reset_scene, run_op  # noqa: E402
+from addon_support import data_counts, run_op  # noqa: E402
 from synthetic_scenes import write_synthetic_scene  # noqa: E402
 
 from addon.blender import capture, modal, steps  # noqa: E402
 from addon.core import jobs  # noqa: E402
-
-
-@pytest.fixture
-def blank():
-    return reset_scene()
 
 
 @pytest.fixture

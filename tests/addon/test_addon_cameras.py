@@ -14,7 +14,7 @@ import torch
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import data_counts, reset_scene, run_op  # noqa: E402
+from addon_support import data_counts, run_op  # noqa: E402
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 from mathutils import Vector  # noqa: E402
 
@@ -23,12 +23,6 @@ from prosplat.convert import read_colmap_text, read_transforms, write_transforms
 from prosplat.convert.colmap import ColmapImage, write_colmap_text  # noqa: E402
 from prosplat.convert.nerfstudio import Frame  # noqa: E402
 from prosplat.core.image_io import write_image  # noqa: E402
-
-
-@pytest.fixture
-def blank():
-    return reset_scene()
-
 
 W, H = 64, 48
 EYES = [(3.0, -1.0, 1.0), (-2.0, -2.5, 0.5), (0.5, 3.0, 2.0), (-3.0, 1.0, -1.0)]

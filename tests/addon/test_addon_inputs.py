@@ -15,7 +15,7 @@ import torch
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import reset_scene, run_op  # noqa: E402
+from addon_support import run_op  # noqa: E402
 from posed_data import scene_cameras, write_transforms_set  # noqa: E402
 from synthetic_scenes import write_synthetic_scene  # noqa: E402
 
@@ -24,11 +24,6 @@ from prosplat.core.image_io import read_image  # noqa: E402
 from prosplat.metrics import psnr  # noqa: E402
 
 SIZE = 32
-
-
-@pytest.fixture
-def blank():
-    return reset_scene()
 
 
 def names(coll) -> list[str]:

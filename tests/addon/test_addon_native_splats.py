@@ -18,7 +18,7 @@ import torch
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import data_counts, reset_scene, run_op  # noqa: E402
+from addon_support import data_counts, run_op  # noqa: E402
 from factories import random_gaussians  # noqa: E402
 from test_addon_splat_display import (  # noqa: E402
     RED_GREEN,
@@ -38,11 +38,6 @@ from prosplat.core.image_io import read_image  # noqa: E402
 if not native_splats.supported():
     pytest.skip(f"Blender {bpy.app.version_string} has no native Gaussian splats (5.3+)",
                 allow_module_level=True)  # fmt: skip
-
-
-@pytest.fixture
-def blank():
-    return reset_scene()
 
 
 def _ours(path: Path):

@@ -13,18 +13,13 @@ import torch
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import data_counts, reset_scene, run_op  # noqa: E402
+from addon_support import data_counts, run_op  # noqa: E402
 from factories import random_gaussians  # noqa: E402
 
 from addon.blender import native_splats  # noqa: E402
 from addon.blender.pointcloud import point_count  # noqa: E402
 from prosplat import read_ply, write_ply  # noqa: E402
 from prosplat.convert.pointcloud import transform_gaussians  # noqa: E402
-
-
-@pytest.fixture
-def blank():
-    return reset_scene()
 
 
 def _import(path: Path):

@@ -19,16 +19,10 @@ except ModuleNotFoundError:  # Python 3.10
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import ROOT, addon, ensure_registered, reset_scene  # noqa: E402
+from addon_support import ROOT, addon, ensure_registered  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_addon  # noqa: E402
-
-
-@pytest.fixture
-def blank():
-    return reset_scene()
-
 
 OPERATORS = ("import_posed_images", "capture_inputs", "reconstruct", "render_view",
              "import_ply", "export_ply", "check_requirements", "install_requirements")  # fmt: skip

@@ -19,7 +19,7 @@ import torch
 pytestmark = pytest.mark.blender
 bpy = pytest.importorskip("bpy")
 
-from addon_support import data_counts, evaluated_instances, reset_scene, run_op  # noqa: E402
+from addon_support import data_counts, evaluated_instances, run_op  # noqa: E402
 
 from addon.blender import native_splats, pointcloud, runtime, splat_display, steps  # noqa: E402
 from addon.core import splat_math  # noqa: E402
@@ -30,11 +30,6 @@ from prosplat.render.projection import quat_to_rotmat  # noqa: E402
 
 SIZE = 32
 TIMINGS: dict[str, float] = {}
-
-
-@pytest.fixture
-def blank():
-    return reset_scene()
 
 
 # ---- helpers ----------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from synthetic_scenes import write_synthetic_scene
 
+import prosplat.cli.reconstruct as reconstruct
 import prosplat.core.image_io as image_io
 from prosplat.cli import build_parser
 from prosplat.convert.nerfstudio import read_transforms
@@ -127,6 +128,8 @@ def _fail_on_the_second_image(monkeypatch, error: BaseException) -> None:
         return real(*args, **kwargs)
 
     monkeypatch.setattr(image_io, "write_image", writer)
+    if hasattr(reconstruct, "write_image"):  # imported at the module's top
+        monkeypatch.setattr(reconstruct, "write_image", writer)
 
 
 @pytest.mark.parametrize("error", [OSError("disk full"), KeyboardInterrupt()])

@@ -138,5 +138,5 @@ def test_demo_refines_from_the_one_pass_gaussians(first_run, tmp_path, monkeypat
     monkeypatch.setattr(ProSplat, "reconstruct", spy)
     monkeypatch.setattr(demo, "render_scene_with_blender", scene_copy)
     res = run_demo(DemoConfig(out=tmp_path / "d", refine_steps=refine_steps, **TINY))
-    assert asked == [True]
+    assert asked == [True, True]  # the demo's own Gaussians, then its ladder's generator row
     assert (res.timings["refine"] > 0) == bool(refine_steps)

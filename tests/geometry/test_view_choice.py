@@ -11,11 +11,14 @@ import torch
 from prosplat import Camera
 from prosplat.convert.posed import camera_to_blender_dict
 from prosplat.geometry.view_choice import (
+    COINCIDENT_TOLERANCE,
     _features,
     axes_focus,
     choose_frames,
     choose_views,
+    distinct_views,
     farthest_views,
+    first_of_pose,
     nearest_views,
     sees_point,
 )
@@ -136,3 +139,73 @@ def test_choose_frames_on_camera_dicts() -> None:
     target = camera_to_blender_dict(cams[5])
     near, why = choose_frames(frames, 3, {"mode": "nearest", "target": target})
     assert [f["name"] for f in near] == ["v4", "v5", "v6"] and "nearest the active" in why
+
+
+def test_coincident_cameras_are_one_pose_within_the_tolerance() -> None:
+    """Copies, float32 rounding and roll are one pose; a step of a few tolerances along the
+    rig or a turn of a few tolerances is another (the criterion against a slow twin)."""
+    cams = orbit(6)
+    centers, forwards = geometry(cams)
+    size = float((centers - centers.mean(0)).norm(dim=1).max())
+    step = 5 * COINCIDENT_TOLERANCE
+    turned = forwards[0] + torch.tensor([0.0, 0.0, step], dtype=torch.float64)
+    extra_c = torch.stack(
+        [
+            centers[0],
+            centers[1].float().double(),
+            centers[0],
+            centers[2] + torch.tensor([step * size, 0.0, 0.0], dtype=torch.float64),
+        ]
+    )
+    extra_f = torch.stack([forwards[0], forwards[1].float().double(), turned, forwards[2]])
+    c, f = torch.cat([centers, extra_c]), torch.cat([forwards, extra_f])
+    assert first_of_pose(c, f) == [0, 1, 2, 3, 4, 5, 0, 1, 8, 9]
+    assert distinct_views(c, f) == [0, 1, 2, 3, 4, 5, 8, 9]
+    # a camera rolled about its axis sees the same scene: same centre and forward
+    rolled = Camera.look_at(cams[3].center.tolist(), (0, 0, 0), (0, 1, 1), 30.0, 32, 32)
+    c2, f2 = geometry([*cams, rolled])
+    assert first_of_pose(c2, f2)[-1] == 3
+    # the slow twin: every pair against the tolerances, first match wins
+    reach = COINCIDENT_TOLERANCE * float((c - c.mean(0)).norm(dim=1).max())
+    reach += 1e-6 * (1 + float(c.norm(dim=1).max()))
+    fn = f / f.norm(dim=1, keepdim=True)
+    twin: list[int] = []
+    for i in range(len(c)):
+        kept = [j for j in range(i) if twin[j] == j]
+        same = [j for j in kept if float((c[j] - c[i]).norm()) <= reach
+                and float((fn[j] - fn[i]).norm()) <= COINCIDENT_TOLERANCE]  # fmt: skip
+        twin.append(same[0] if same else i)
+    assert first_of_pose(c, f) == twin
+
+
+def test_farthest_views_never_repeat_a_view() -> None:
+    """Fewer distinct poses than asked: the sampling goes on with views not yet picked
+    instead of picking the first one again (it returned 0, 0, 0, 0 on one pose)."""
+    centers = torch.zeros(5, 3, dtype=torch.float64)
+    forwards = torch.tensor([[0.0, 0.0, 1.0]] * 5, dtype=torch.float64)
+    assert farthest_views(centers, forwards, 4) == [0, 1, 2, 3]
+
+
+def test_coincident_views_are_never_chosen_twice() -> None:
+    centers, forwards = geometry(orbit(12))
+    # views 12-19: copies of views 0, 3, 6 and 9 (a frame listed twice, a static camera)
+    copies = [0, 3, 6, 9, 0, 3, 6, 9]
+    c, f = torch.cat([centers, centers[copies]]), torch.cat([forwards, forwards[copies]])
+    for mode, target in (("spread", None), ("nearest", (centers[5], forwards[5]))):
+        picked, why = choose_views(c, f, 6, mode, None, target)
+        assert len(set(picked)) == 6 and all(i < 12 for i in picked), (mode, picked)
+        assert "8 of the 20 views repeat another's camera pose" in why
+    # few views: each distinct pose once, the first of each
+    picked, why = choose_views(c[[0, 12, 3, 13]], f[[0, 12, 3, 13]], 6)
+    assert picked == [0, 2] and "all 2 input views" in why
+
+
+def test_one_pose_is_refused_clearly() -> None:
+    centers, forwards = geometry(orbit(4))
+    same_c, same_f = centers[[1, 1, 1, 1]], forwards[[1, 1, 1, 1]]
+    with pytest.raises(ValueError, match="the 4 input views all have the same camera pose"):
+        choose_views(same_c, same_f, 6)
+    cam = camera_to_blender_dict(orbit(4)[1])
+    frames = [{"name": f"v{i}", "image": None, "camera": cam} for i in range(3)]
+    with pytest.raises(ValueError, match="same camera pose.*move or turn"):
+        choose_frames(frames, 6)

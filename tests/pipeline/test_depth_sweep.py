@@ -173,7 +173,7 @@ def test_the_pipeline_scales_one_pass_views_and_refines_from_them(views, monkeyp
     """reconstruct applies the search's factor (here forced to 1.1), depth_scale=False
     leaves it out, and refinement starts from the scaled one-pass Gaussians: 0 steps is the
     one-pass scene."""
-    import prosplat.pipeline.depth_sweep as depth_sweep
+    import prosplat.pipeline.model as pipeline_model
 
     cams, images, _ = views
     model = ProSplat(trained_size=SIZE)
@@ -184,7 +184,7 @@ def test_the_pipeline_scales_one_pass_views_and_refines_from_them(views, monkeyp
         calls.append(len(cameras))
         return 1.1, [(1.1, 0.0)]
 
-    monkeypatch.setattr(depth_sweep, "scale_search", forced)
+    monkeypatch.setattr(pipeline_model, "scale_search", forced)  # the name the model calls
     plain = model.reconstruct(images, cams, depth_scale=False)
     assert calls == []
     scaled = model.reconstruct(images, cams)

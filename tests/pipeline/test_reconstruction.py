@@ -66,6 +66,7 @@ def test_the_default_budget_prunes_the_generators_gaussians(model, scene):
     assert rec.prune_stats == stats and 0 < stats["kept"] < stats["input"]
     assert_same_gaussians(rec.gaussians, g)
     assert torch.equal(rec.view_index, full.view_index[keep])
+    assert torch.equal(rec.gaussians.views, rec.view_index)
     assert torch.equal(rec.depths, full.depths) and rec.cameras == full.cameras
     v, h, w = rec.depths.shape
     assert v == len(rec.cameras) == 3 and (h, w) == (rec.cameras[0].height, rec.cameras[0].width)

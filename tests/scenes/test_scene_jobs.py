@@ -1,10 +1,13 @@
-"""The worker line protocol of ``prosplat scenes render`` (bpy-free)."""
+"""The worker line protocol of ``prosplat scenes render`` (bpy-free, in
+:mod:`prosplat.data.render_jobs`) and the command line of its workers."""
 
 from __future__ import annotations
 
 import io
 
-from scenes.jobs import answer_line, read_answer
+from prosplat.cli import build_parser
+from prosplat.cli.scenes import cmd_scenes_render, render_worker_command
+from prosplat.data.render_jobs import answer_line, read_answer
 
 
 def test_an_answer_is_found_after_blender_text_on_its_line():
@@ -28,8 +31,6 @@ def test_a_failure_carries_its_error_and_a_dead_worker_returns_none():
 def test_the_worker_command_shares_the_cores_unless_threads_is_given(monkeypatch, tmp_path):
     import os
 
-    from prosplat.cli import build_parser, cmd_scenes_render, render_worker_command
-
     def threads_of(*extra: str) -> int:
         args = build_parser().parse_args(["scenes", "render", "--out", str(tmp_path), *extra])
         cmd = render_worker_command(args)
@@ -47,7 +48,6 @@ def test_the_worker_command_shares_the_cores_unless_threads_is_given(monkeypatch
 def test_the_worker_command_carries_the_denoiser_setting(tmp_path):
     """--denoise-quality reaches the worker's command line with --denoise; without --denoise a
     setting other than the default is refused before any Blender starts."""
-    from prosplat.cli import build_parser, cmd_scenes_render, render_worker_command
 
     def command(*extra: str) -> list[str]:
         args = build_parser().parse_args(["scenes", "render", "--out", str(tmp_path), *extra])

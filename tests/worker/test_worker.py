@@ -134,6 +134,18 @@ def test_read_posed_images_transforms_and_nerf_synthetic(tmp_path: Path) -> None
     torch.testing.assert_close(posed2[2].camera.K, posed[2].camera.K)
 
 
+def test_read_posed_images_task_lists_a_repeated_frame_once_with_a_warning(tmp_path: Path):
+    write_synthetic_scene(tmp_path / "s", size=32, n_views=3)
+    data = json.loads((tmp_path / "s" / "transforms.json").read_text())
+    data["frames"] = [data["frames"][1], *data["frames"], data["frames"][1]]
+    (tmp_path / "s" / "transforms.json").write_text(json.dumps(data))
+    res = run_task("read_posed_images", {"path": str(tmp_path / "s" / "transforms.json")})
+    images = [Path(f["image"]).name for f in res["frames"]]
+    assert images == ["001.png", "000.png", "002.png"]  # each image once, the first frame
+    assert len({f["name"] for f in res["frames"]}) == 3
+    assert len(res["warnings"]) == 1 and "left out 2 frames" in res["warnings"][0]
+
+
 def test_read_posed_images_colmap_finds_images_beside_sparse(tmp_path: Path) -> None:
     cams = write_synthetic_scene(tmp_path / "s", size=32, n_views=3)
     images = [ColmapImage(f"{i:03d}.png", c, i + 1) for i, c in enumerate(cams)]
@@ -374,6 +386,23 @@ def test_missing_input_image_is_named(scene) -> None:
     frames[1]["image"] = None
     with pytest.raises(ValueError, match="input view '002' has no image"):
         run_task("reconstruct", {"frames": frames, "device": "cpu"})
+
+
+def test_input_views_with_one_camera_pose_are_refused(scene, tmp_path: Path) -> None:
+    """Frames that share one pose are one view (the choice takes the first of them): 3 frames
+    from 2 poses reconstruct from those 2, and frames all from one pose are refused before
+    any output."""
+    folder, cams = scene
+    frames = _frames(folder, cams, [0, 2, 3])
+    frames[2]["camera"] = frames[0]["camera"]  # image 003 seen from view 000's camera
+    rec = run_task("reconstruct", {"frames": frames, "device": "cpu", "near": 0.5, "far": 10.0})
+    assert rec["views"] == ["000", "002"] and "repeat another's camera pose" in rec["view_reason"]
+    for f in frames:
+        f["camera"] = frames[0]["camera"]
+    ply = tmp_path / "g.ply"
+    with pytest.raises(ValueError, match="all have the same camera pose"):
+        run_task("reconstruct", {"frames": frames, "device": "cpu", "ply": str(ply)})
+    assert not ply.exists()
 
 
 # ---- the external worker process --------------------------------------------------------

@@ -1,5 +1,7 @@
 """The line protocol between ``prosplat scenes render`` and its long-lived Blender workers
-(``python -m scenes.render --jobs-from-stdin``). bpy-free, so the parent can import it.
+(``python -m scenes.render --jobs-from-stdin``). bpy-free, so both sides import it: the
+CLI from here, the repository's Blender scripts (``scenes/``) from the library, never the
+other way round.
 
 The parent writes ``NAME SEED`` lines; the worker answers each with one line holding
 ``PROSPLAT_DONE {"name", "seed", "folder"}`` or ``PROSPLAT_FAILED {"name", "seed", "error"}``
