@@ -4,7 +4,7 @@ both see the same machine load, with the paired ratio and how far the Gaussians 
 
 The sweeps are the learned cost volume (``prosplat.generator.cost_volume``) and the images'
 own ZNCC volume (``prosplat.generator.image_cost``, with the box filters of
-``prosplat.eval.baselines.plane_sweep``). The older code is read from git (``git show
+``prosplat.geometry.matching``). The older code is read from git (``git show
 COMMIT:path``) into modules of its own and swapped into ``prosplat.generator.model`` for its
 turns, so the rest of the network is the same code both ways.
 
@@ -39,11 +39,30 @@ ROOT = Path(__file__).resolve().parents[1]
 SHAPES = ((48, 16, 16), (16, 32, 32), (48, 32, 32), (16, 64, 64))
 
 
-def _module_at(commit: str, path: str, name: str, folder: Path):
-    """The file ``path`` as it was at ``commit``, imported as module ``name``."""
-    text = subprocess.run(
-        ["git", "show", f"{commit}:{path}"], cwd=ROOT, capture_output=True, text=True, check=True
-    ).stdout
+#: Modules that moved in the redesign (issue 67): older code is read with its imports of
+#: them rewritten, so it runs against today's package.
+MOVED = {
+    "prosplat.camera": "prosplat.core.camera",
+    "prosplat.gaussians": "prosplat.core.gaussians",
+    "prosplat.rotations": "prosplat.core.rotations",
+    "prosplat.baselines.plane_sweep": "prosplat.geometry.matching",
+}
+
+
+def _module_at(commit: str, paths: tuple[str, ...], name: str, folder: Path):
+    """The first of ``paths`` that exists at ``commit`` (a file's places before and after
+    the moves), as it was then, imported as module ``name``."""
+    for path in paths:
+        found = subprocess.run(
+            ["git", "show", f"{commit}:{path}"], cwd=ROOT, capture_output=True, text=True
+        )
+        if found.returncode == 0:
+            break
+    else:
+        raise FileNotFoundError(f"none of {paths} exists at {commit}")
+    text = found.stdout
+    for before, now in MOVED.items():
+        text = text.replace(f"from {before} import", f"from {now} import")
     file = folder / f"{name}.py"
     file.write_text(text)
     spec = importlib.util.spec_from_file_location(name, file)
@@ -55,9 +74,10 @@ def _module_at(commit: str, path: str, name: str, folder: Path):
 def modules_at(commit: str, folder: Path) -> tuple:
     """(cost_volume, plane_sweep, image_cost) as at ``commit``, the image volume wired to
     the warp grid and box filters of that commit."""
-    cv = _module_at(commit, "prosplat/generator/cost_volume.py", "old_cost_volume", folder)
-    ps = _module_at(commit, "prosplat/eval/baselines/plane_sweep.py", "old_plane_sweep", folder)
-    ic = _module_at(commit, "prosplat/generator/image_cost.py", "old_image_cost", folder)
+    cv = _module_at(commit, ("prosplat/generator/cost_volume.py",), "old_cost_volume", folder)
+    matching = ("prosplat/geometry/matching.py", "prosplat/baselines/plane_sweep.py")
+    ps = _module_at(commit, matching, "old_plane_sweep", folder)
+    ic = _module_at(commit, ("prosplat/generator/image_cost.py",), "old_image_cost", folder)
     ic.warp_grid, ic.patch_mean_var, ic.window_zncc = (
         cv.warp_grid,
         ps.patch_mean_var,
@@ -91,7 +111,7 @@ def time_parts(before: tuple, repeats: int, size: int = 64) -> None:
     inputs (4 views, 32 candidates, ``size`` x ``size``): the ZNCC box filter (5 statistics,
     window 5), one neighbour's warp grid, and the learned volume's correlation of 16
     channels without gradients."""
-    from prosplat.eval.baselines import plane_sweep
+    from prosplat.geometry import matching as plane_sweep
 
     old_cv, old_ps, _ = before
     g = torch.Generator().manual_seed(1)

@@ -172,3 +172,9 @@ def test_the_checker_sees_function_level_and_relative_imports(tmp_path):
         "prosplat.core.camera"
     )
     assert "prosplat.core.camera" in GRAPH["prosplat.render.reference"]
+
+
+def test_the_camera_is_a_leaf():
+    """Everything speaks the camera; it imports nothing of ours, so it is never half-made
+    (a cycle through it once was)."""
+    assert GRAPH["prosplat.core.camera"] == set()

@@ -31,4 +31,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
-    sys.exit(args.func(args))
+    try:
+        code = args.func(args)
+    except KeyboardInterrupt:
+        # every command writes its output aside and moves it into place when done
+        # (prosplat.core.paths.staged_folder), so stopping leaves nothing half-written
+        print(
+            f"prosplat {args.command}: interrupted; nothing half-written was left", file=sys.stderr
+        )
+        code = 130
+    sys.exit(code)

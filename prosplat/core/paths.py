@@ -34,6 +34,18 @@ def fresh_folder(path: Path, overwrite: bool) -> Path:
     return candidate
 
 
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` through a hidden sibling and a rename: a reader (or a resumed run) sees
+    the old file or the new one, never half of one."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def partial_name(out: Path, pid: int | None = None) -> Path:
     """The sibling folder :func:`staged_folder` writes ``out`` into: ``.NAME.partial-PID``
     (hidden, and named for the process, as ``prosplat scenes render`` names its scenes')."""

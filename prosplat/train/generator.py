@@ -60,6 +60,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from prosplat.core.paths import write_text_atomic
 from prosplat.train.batches import (
     StepBatches,
     batch_cameras,
@@ -250,7 +251,7 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
     dist.barrier()
     if dist.is_main:
         if ckpt is None:
-            cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
+            write_text_atomic(cfg_path, json.dumps(asdict(cfg), indent=1))
         else:
             truncate_log(log_path, step)
             _record_resumed_config(cfg_path, cfg, step)
@@ -395,7 +396,7 @@ def _record_resumed_config(cfg_path: Path, cfg: TrainConfig, step: int) -> None:
     kept = cfg_path.with_name(f"train_config.before_{step}.json")
     if not kept.exists():
         kept.write_text(old)
-    cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
+    write_text_atomic(cfg_path, json.dumps(asdict(cfg), indent=1))
 
 
 def _init_weights(cfg: TrainConfig):

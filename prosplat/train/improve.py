@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from prosplat.core.paths import write_text_atomic
 from prosplat.improve.config import preset
 from prosplat.improve.io import load_improver, save_improver
 from prosplat.improve.model import ImproveModel
@@ -168,7 +169,7 @@ class _Run:
             if dist.is_main:
                 truncate_log(self.out / "log.jsonl", self.step)
         elif dist.is_main:
-            cfg_path.write_text(json.dumps(asdict(cfg), indent=1))
+            write_text_atomic(cfg_path, json.dumps(asdict(cfg), indent=1))
         self.log = open(self.out / "log.jsonl", "a") if dist.is_main else None
         self.bar = tqdm(
             total=cfg.steps, initial=self.step, desc=desc, disable=not progress or not dist.is_main

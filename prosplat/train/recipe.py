@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from prosplat.core.paths import write_text_atomic
 from prosplat.data.scene_sets import SCENE_SETS, link_subset, parse_seeds
 from prosplat.pipeline.model import ProSplat
 from prosplat.train.blend import blend_files
@@ -531,7 +532,7 @@ def _copy_run(src: Path, dest: Path, cfg) -> None:
     step = weights_step(dest / "checkpoint.safetensors") or 0
     if (src / "train_config.json").exists():
         shutil.copy2(src / "train_config.json", dest / f"train_config.before_{step}.json")
-    (dest / "train_config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=1))
+    write_text_atomic(dest / "train_config.json", json.dumps(dataclasses.asdict(cfg), indent=1))
 
 
 def final_config(recipe: Recipe) -> Any:

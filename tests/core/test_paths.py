@@ -109,3 +109,20 @@ def test_fresh_folder_never_clobbers(tmp_path):
     (out / "x").write_text("x")
     assert fresh_folder(out, overwrite=False) == tmp_path / "out-2"
     assert fresh_folder(out, overwrite=True) == out
+
+
+def test_write_text_atomic_replaces_whole_or_not_at_all(tmp_path: Path, monkeypatch) -> None:
+    from prosplat.core import paths
+
+    target = tmp_path / "train_config.json"
+    paths.write_text_atomic(target, "old")
+    assert target.read_text() == "old"
+
+    def fail(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(paths.os, "replace", fail)
+    with pytest.raises(OSError, match="disk full"):
+        paths.write_text_atomic(target, "new")
+    assert target.read_text() == "old"  # the old file, whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["train_config.json"]  # no temporary

@@ -34,8 +34,8 @@ def scene(scene_dir):
 
 
 @pytest.fixture(scope="module")
-def model():
-    model = ProSplat.from_pretrained()
+def model(shipped_model):
+    model = shipped_model
     assert model.improver is not None, "the shipped improvement model should load"
     return model
 

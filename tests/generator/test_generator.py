@@ -62,14 +62,7 @@ def batch(cams: list[Camera], seed: int = 0, b: int = 1):
     return images, K, w2c
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """These tensors are tiny: with 2 threads on a shared 2-core machine, the parallel-region
-    overhead of many small ops made this file 10x slower (30 s vs 3 s)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tiny tensors: one thread is faster
 
 
 @pytest.fixture(scope="module")

@@ -26,13 +26,7 @@ from prosplat.generator.cost_volume import inverse_depth_candidates, nearest_vie
 from prosplat.generator.image_cost import image_cost_volume
 from prosplat.train.generator_config import TrainConfig
 
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tiny tensors: one thread is faster
 
 
 def _plane_image(cam: Camera, z0: float) -> torch.Tensor:

@@ -9,7 +9,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from prosplat import ProSplat, Reconstruction, render
+from prosplat import Reconstruction, render
 from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians
 from prosplat.geometry.budget import prune_pixel_aligned
 from prosplat.pipeline.refine import refine
@@ -18,8 +18,8 @@ NEAR, FAR = 1.0, 8.0
 
 
 @pytest.fixture(scope="module")
-def model():
-    return ProSplat.from_pretrained(improve=False)
+def model(shipped_generator):
+    return shipped_generator
 
 
 @pytest.fixture(scope="module")

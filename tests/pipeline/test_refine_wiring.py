@@ -18,15 +18,15 @@ from prosplat.pipeline.model import TRAINED_SIZE
 
 
 @pytest.fixture(scope="module")
+def model(shipped_generator):
+    return shipped_generator
+
+
+@pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     folder = tmp_path_factory.mktemp("refine") / "scenes" / "scene_a"
     write_synthetic_scene(folder, size=32, n_views=5)
     return load_scene(folder)
-
-
-@pytest.fixture(scope="module")
-def model():
-    return ProSplat.from_pretrained(improve=False)
 
 
 def scene_inputs(scene, n=3):

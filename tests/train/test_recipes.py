@@ -10,7 +10,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-import torch
 from synthetic_scenes import write_synthetic_scene
 
 from prosplat.cli import build_parser, main
@@ -168,12 +167,7 @@ def scenes(tmp_path_factory):
     return root
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tiny tensors: one thread is faster
 
 
 def test_a_recipe_runs_its_stages_into_one_folder_and_skips_those_done(small_scenes, tmp_path):

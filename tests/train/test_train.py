@@ -43,14 +43,6 @@ def dataset(tmp_path_factory):
     return root
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny models run faster on one thread here; restore the setting for other tests."""
-    before = torch.get_num_threads()
-    yield
-    torch.set_num_threads(before)
-
-
 def test_train_logs_checkpoints_and_resumes(dataset, tmp_path):
     out = tmp_path / "run"
     cfg = TrainConfig(
