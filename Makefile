@@ -50,20 +50,25 @@ $(STAMP_BPY): $(STAMP)
 	$(PY_BPY) -m pip uninstall --quiet --yes triton
 	touch $(STAMP_BPY)
 
+# Tests run on every core (pytest-xdist), a file per worker at a time: an add-on test file's
+# tests share one Blender's state. `make test JOBS=0` runs them in this one process.
+JOBS   ?= auto
+XDIST  := -n $(JOBS) --dist loadfile
+
 demo: $(STAMP)
 	$(PY) -m prosplat demo
 
 test: $(STAMP) $(STAMP_BPY)
 	$(PY) -m ruff check .
-	$(PY) -m pytest
-	$(PY_BPY) -m pytest tests/addon
+	$(PY) -m pytest $(XDIST)
+	$(PY_BPY) -m pytest $(XDIST) tests/addon
 
 # The add-on's tests alone, on bpy $(BPY) (Python 3.13)
 test-addon: $(STAMP_BPY)
-	$(PY_BPY) -m pytest tests/addon
+	$(PY_BPY) -m pytest $(XDIST) tests/addon
 
 test-all: $(STAMP)
-	$(PY) -m pytest -m "slow or not slow"
+	$(PY) -m pytest $(XDIST) -m "slow or not slow"
 
 # The whole system's numbers (BENCHMARKS.md): renders the test and hard scenes once (skipped
 # when present; ~10 min), then speed against error, the hard-case suite and the rasterizer.

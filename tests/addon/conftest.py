@@ -12,3 +12,4 @@ def blank():
     from addon_support import reset_scene
 
     return reset_scene()
+
