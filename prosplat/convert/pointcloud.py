@@ -31,7 +31,8 @@ import torch
 
 from prosplat.core.gaussians import SH_C0, Gaussians
 from prosplat.core.ply import OPACITY_MAX, OPACITY_MIN, SCALE_MIN, VIEW_PROPERTY, view_indices
-from prosplat.core.rotations import quat_multiply
+from prosplat.core.rotations import quat_multiply, rotmat_to_qvec
+from prosplat.render.sh import sh_basis
 
 __all__ = [
     "COLOR",
@@ -155,7 +156,6 @@ def from_attributes(
 
 # ---- rigid / similarity transforms ----------------------------------------------------------
 def _rotmat_to_quat(R: torch.Tensor) -> torch.Tensor:
-    from prosplat.core.rotations import rotmat_to_qvec
 
     return rotmat_to_qvec(R)
 
@@ -167,7 +167,6 @@ def _sh_rotation(degree: int, R: torch.Tensor) -> list[torch.Tensor]:
     Each band's basis is closed under rotation, so ``Y(R^T d) = Y(d) D^T`` holds exactly for
     any directions; least squares over 64 random ones recovers D to float64 round-off.
     """
-    from prosplat.render.sh import sh_basis
 
     gen = torch.Generator().manual_seed(0)
     d = torch.randn(64, 3, generator=gen, dtype=torch.float64)

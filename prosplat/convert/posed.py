@@ -118,7 +118,7 @@ def _colmap_model_dir(path: Path) -> Path | None:
     return None
 
 
-def _colmap_image_dirs(model: Path, images_dir: Path | None) -> list[Path]:
+def colmap_image_dirs(model: Path, images_dir: Path | None) -> list[Path]:
     if images_dir is not None:
         return [images_dir]
     # COLMAP projects keep images/ beside sparse/ (model is sparse/0 or sparse).
@@ -150,7 +150,7 @@ def read_posed_images(
     model = None if path.suffix.lower() == ".json" else _colmap_model_dir(path)
     if model is not None:
         out = []
-        dirs = _colmap_image_dirs(model, images_dir)
+        dirs = colmap_image_dirs(model, images_dir)
         images = read_colmap_text(model)
         for im, name in zip(images, unique_names([im.name for im in images]), strict=True):
             found = next((d / im.name for d in dirs if (d / im.name).is_file()), None)
@@ -162,7 +162,7 @@ def read_posed_images(
     names = unique_names([f.file_path for f in tf.frames])
     for frame, name in zip(tf.frames, names, strict=True):
         split, kind = frame.extra.get("split"), frame.extra.get("target_kind")
-        out.append(PosedImage(name, _find_image(root, frame.file_path), frame.camera,
+        out.append(PosedImage(name, find_image(root, frame.file_path), frame.camera,
                               split if isinstance(split, str) else None,
                               kind if isinstance(kind, str) else None))  # fmt: skip
     return out, dict(tf.meta)
@@ -183,7 +183,7 @@ def unique_names(paths: list[str]) -> list[str]:
     return out
 
 
-def _find_image(root: Path, file_path: str) -> Path | None:
+def find_image(root: Path, file_path: str) -> Path | None:
     p = root / file_path
     if p.is_file():
         return p.resolve()

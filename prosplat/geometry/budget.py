@@ -47,6 +47,7 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
+from prosplat.render.projection import project_gaussians
 
 __all__ = ["budget_arg", "prune_gaussians", "prune_pixel_aligned", "importance"]
 
@@ -240,7 +241,6 @@ def importance(gaussians: Gaussians, view_index: Tensor, cameras: list[Camera]) 
     what the Gaussian paints in the image it was predicted from; Gaussians behind that camera
     or too faint to draw score 0.
     """
-    from prosplat.render.projection import project_gaussians
 
     g = gaussians.detach()
     score = torch.zeros(len(g), dtype=torch.float64, device=g.device)

@@ -31,7 +31,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from prosplat.convert.posed import camera_from_dict
 from prosplat.core.camera import Camera
+from prosplat.data.rigs import farthest_point_sampling
 
 __all__ = [
     "COINCIDENT_TOLERANCE",
@@ -164,7 +166,6 @@ def farthest_views(centers: Tensor, forwards: Tensor, count: int, first: int = 0
     Greedy sampling is within a factor 2 of the best possible smallest pairwise distance,
     which the tests check against brute force.
     """
-    from prosplat.data.rigs import farthest_point_sampling
 
     return farthest_point_sampling(_features(centers.double(), forwards.double()), count, first)
 
@@ -256,7 +257,6 @@ def choose_frames(
     ``choice``: ``{"mode": "spread" | "nearest", "target": camera dict}`` (None: spread, no
     target). Camera dicts are those of :mod:`prosplat.convert.posed`.
     """
-    from prosplat.convert.posed import camera_from_dict
 
     if not isinstance(frames, list) or not frames:
         raise ValueError("no input views given; an input view needs an image and a camera")

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as tF
 from torch import Tensor, nn
 
-from prosplat.improve.epipolar import _work_dtype, epipolar_distances
+from prosplat.improve.epipolar import epipolar_distances, work_dtype
 
 __all__ = ["DWEA", "DWEAInjection", "DepthwiseSeparableConv", "epipolar_modulation"]
 
@@ -76,7 +76,7 @@ def epipolar_modulation(
     if not sigma > 0:
         raise ValueError(f"epipolar_modulation: sigma must be > 0 (feature cells), got {sigma}")
     device = torch.device(device) if device is not None else F.device
-    F = F.detach().to(_work_dtype(device)).to(device)
+    F = F.detach().to(work_dtype(device)).to(device)
     d, valid = epipolar_distances(F, target_hw, ref_hw, stride)  # pixels
     d = d / float(stride)
     m = torch.exp(-(d - d.amin(-1, keepdim=True)) / sigma)  # max 1 per row

@@ -42,7 +42,7 @@ def _skew(t: Tensor) -> Tensor:
     return torch.stack(rows, -2)
 
 
-def _work_dtype(device: torch.device) -> torch.dtype:
+def work_dtype(device: torch.device) -> torch.dtype:
     """float64 wherever the device has it (MPS has not, so it gets float32)."""
     return torch.float32 if device.type == "mps" else torch.float64
 
@@ -83,7 +83,7 @@ def fundamental_matrices(K_tgt: Tensor, w2c_tgt: Tensor, K_ref: Tensor, w2c_ref:
             raise ValueError(
                 f"fundamental_matrices: {name} contains NaN or Inf; check the camera poses"
             )
-    dtype = _work_dtype(K_tgt.device)
+    dtype = work_dtype(K_tgt.device)
     with torch.no_grad():
         K_t, K_r = K_tgt.to(dtype), K_ref.to(dtype)
         R_t, T_t = w2c_tgt[:, :3, :3].to(dtype), w2c_tgt[:, :3, 3].to(dtype)
@@ -191,7 +191,7 @@ def epipolar_distances(
             f"epipolar_distances: stride must be > 0 (pixels per feature cell), got {stride}"
         )
     target_hw, ref_hw = _check_hw(target_hw, "target_hw"), _check_hw(ref_hw, "ref_hw")
-    work = _work_dtype(F.device)
+    work = work_dtype(F.device)
     with torch.no_grad():
         Fw = F.to(work)
         norm = Fw.flatten(1).norm(dim=-1)  # [B]

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.core.camera import Camera
+from prosplat.render import render
 
 #: A target pixel's point is visible to the reference when its depth there is within this
 #: fraction of the reference's own rendered depth (soft surfaces of Gaussians blur depth).
@@ -101,7 +102,6 @@ def reference_warp(
     reference image's size): one more render per view, unless the caller passes that depth
     ``[h,w]`` (``reference_depth``), as curation does for the targets that share a reference.
     """
-    from prosplat.render import render
 
     with torch.no_grad():
         if reference_depth is None:

@@ -39,7 +39,7 @@ SSIM_K1 = 0.01
 SSIM_K2 = 0.03
 
 
-def _check_images(pred: Tensor, target: Tensor, fn: str) -> tuple[Tensor, Tensor, bool]:
+def check_image_batch(pred: Tensor, target: Tensor, fn: str) -> tuple[Tensor, Tensor, bool]:
     """Validate a pair of images; return them as ``[B, 3, H, W]`` and whether input was batched.
 
     Raises ``ValueError`` naming the function, the argument and the fix, so that a wrong call
@@ -84,7 +84,7 @@ def _check_images(pred: Tensor, target: Tensor, fn: str) -> tuple[Tensor, Tensor
     return pred, target, batched
 
 
-def _check_mask(mask: Tensor | None, images: Tensor, batched: bool, fn: str) -> Tensor | None:
+def check_mask(mask: Tensor | None, images: Tensor, batched: bool, fn: str) -> Tensor | None:
     """Validate a valid-pixel mask; return it as bool ``[B, H, W]`` on the images' device.
 
     ``mask`` is ``[H, W]`` (shared by every image) or, for batched images, ``[B, H, W]``.
@@ -108,7 +108,7 @@ def _check_mask(mask: Tensor | None, images: Tensor, batched: bool, fn: str) -> 
     return mask
 
 
-def _check_nonempty(mask: Tensor, fn: str, where: str = "") -> None:
+def check_nonempty(mask: Tensor, fn: str, where: str = "") -> None:
     """Raise when some image in the batch has no valid pixel (the mean would be 0/0)."""
     counts = mask.flatten(1).sum(dim=1)
     if bool((counts == 0).any()):
@@ -131,15 +131,15 @@ def psnr(
         Scalar tensor (unbatched) or [B]. Capped at :data:`PSNR_MAX_DB` (100 dB) so identical
         images give a finite value, never ``inf`` or NaN; the cap has zero gradient.
     """
-    pred, target, batched = _check_images(pred, target, "psnr")
+    pred, target, batched = check_image_batch(pred, target, "psnr")
     if not (isinstance(data_range, (int, float)) and math.isfinite(data_range) and data_range > 0):
         raise ValueError(f"psnr: data_range must be a positive finite number, got {data_range!r}")
-    m = _check_mask(mask, pred, batched, "psnr")
+    m = check_mask(mask, pred, batched, "psnr")
     se = (pred - target).square()  # [B, 3, H, W]
     if m is None:
         mse = se.flatten(1).mean(dim=1)  # [B]
     else:
-        _check_nonempty(m, "psnr")
+        check_nonempty(m, "psnr")
         w = m.unsqueeze(1).to(se.dtype)  # [B, 1, H, W]
         mse = (se * w).flatten(1).sum(dim=1) / (3.0 * w.flatten(1).sum(dim=1))  # [B]
     floor = data_range**2 * 10.0 ** (-PSNR_MAX_DB / 10.0)
@@ -193,8 +193,8 @@ def ssim(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:
     Returns:
         Scalar tensor (unbatched) or [B]: the mean over channels and valid pixels, in [-1, 1].
     """
-    pred, target, batched = _check_images(pred, target, "ssim")
-    m = _check_mask(mask, pred, batched, "ssim")
+    pred, target, batched = check_image_batch(pred, target, "ssim")
+    m = check_mask(mask, pred, batched, "ssim")
     h, w = pred.shape[-2:]
     if h < SSIM_WINDOW or w < SSIM_WINDOW:
         raise ValueError(
@@ -207,7 +207,7 @@ def ssim(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:
     else:
         r = SSIM_WINDOW // 2
         m = m[:, r : h - r, r : w - r]
-        _check_nonempty(m, "ssim", f" at least {r} px from the border")
+        check_nonempty(m, "ssim", f" at least {r} px from the border")
         wgt = m.to(s.dtype)
         out = (s * wgt).flatten(1).sum(dim=1) / wgt.flatten(1).sum(dim=1)
     return out if batched else out[0]

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from prosplat.metrics.image import _check_images, _check_mask, _check_nonempty
+from prosplat.metrics.image import check_image_batch, check_mask, check_nonempty
 
 __all__ = ["LPIPS", "LPIPS_MIN_SIZE", "alexnet_relus", "lpips", "unit_normalize"]
 
@@ -152,8 +152,8 @@ class LPIPS(nn.Module):
         Returns:
             Scalar tensor (unbatched) or [B].
         """
-        pred, target, batched = _check_images(pred, target, "lpips")
-        m = _check_mask(mask, pred, batched, "lpips")
+        pred, target, batched = check_image_batch(pred, target, "lpips")
+        m = check_mask(mask, pred, batched, "lpips")
         h, w = pred.shape[-2:]
         if h < LPIPS_MIN_SIZE or w < LPIPS_MIN_SIZE:
             raise ValueError(
@@ -161,7 +161,7 @@ class LPIPS(nn.Module):
                 f"(AlexNet's receptive field), got {h}x{w}"
             )
         if m is not None:
-            _check_nonempty(m, "lpips")
+            check_nonempty(m, "lpips")
         b = pred.shape[0]
         x = torch.cat([pred, target], dim=0).float() * 2.0 - 1.0  # [2B, 3, H, W] in [-1, 1]
         x = (x - self.shift) / self.scale

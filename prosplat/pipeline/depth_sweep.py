@@ -37,10 +37,13 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.core.camera import Camera
+from prosplat.data.scene import resize_views
 from prosplat.generator.output import GeneratorOutput
+from prosplat.geometry.budget import prune_pixel_aligned
 from prosplat.geometry.matching import winner_take_all, zncc_cost
 from prosplat.geometry.pixel_gaussians import slide_gaussians
 from prosplat.pipeline.refine import photometric_loss
+from prosplat.render import render
 
 __all__ = [
     "DepthSweepOptions",
@@ -177,8 +180,6 @@ def sweep_depths(
     if top is None or h <= top:
         log_f, take = _corrections(images, cameras, depths, options)
     else:  # sweep a smaller copy; the correction is smooth, so it is upsampled
-        from prosplat.data.scene import resize_views
-
         small, small_cams = resize_views(images, cameras, int(top))
         size = tuple(small.shape[-2:])
         small_depths = F.interpolate(depths[:, None], size=size, mode="nearest")[:, 0]
@@ -256,8 +257,6 @@ def snap_output(
     new, _ = sweep_depths(images, cameras, depths.detach(), options)
     out = slide_along_rays(out, cameras, new)
     if options.searches_scale(len(cameras)):
-        from prosplat.geometry.budget import prune_pixel_aligned
-
         # scored on what the pipeline keeps: one copy of each surface seen by several views
         _, keep, _ = prune_pixel_aligned(out.gaussians(0).detach(), out.depths[0], cameras)
         factor, _ = scale_search(out, images, cameras, options, keep=keep)
@@ -301,8 +300,6 @@ def scale_search(
     Returns:
         the winning factor and ``[(factor, loss), ...]`` for every candidate.
     """
-    from prosplat.data.scene import resize_views
-    from prosplat.render import render
 
     options = DepthSweepOptions() if options is None else options
     options.check()

@@ -23,8 +23,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from prosplat.convert.colmap import read_colmap_model
 from prosplat.convert.distortion import Distortion, undistort_image, undistorted_camera
+from prosplat.convert.nerfstudio import TRANSFORMS_NAME, read_transforms
+from prosplat.convert.posed import colmap_image_dirs, find_image
 from prosplat.core.camera import Camera
+from prosplat.core.image_io import composite, read_image_rgba
+from prosplat.data.rigs import farthest_point_sampling
 from prosplat.geometry.view_choice import first_of_pose
 
 __all__ = [
@@ -177,9 +182,6 @@ def load_posed_set(
             frame's, with ``skip_missing``).
         ValueError: a malformed file (the message names the line or frame), no frames.
     """
-    from prosplat.convert.colmap import read_colmap_model
-    from prosplat.convert.nerfstudio import TRANSFORMS_NAME, read_transforms
-    from prosplat.convert.posed import _colmap_image_dirs, _find_image
 
     path = Path(path)
     images_dir = Path(images_dir) if images_dir else None
@@ -190,7 +192,7 @@ def load_posed_set(
     model_dir = None if path.suffix.lower() == ".json" else _colmap_folder(path)
     if model_dir is not None:
         model = read_colmap_model(model_dir)
-        dirs = _colmap_image_dirs(model_dir, images_dir)
+        dirs = colmap_image_dirs(model_dir, images_dir)
         images, repeated = _drop_repeats(model.images, lambda im: im.name)
         repeats = [im.name for im in repeated]
         names = _unique_names([im.name for im in images])
@@ -223,14 +225,14 @@ def load_posed_set(
         root = images_dir if images_dir is not None else json_path.parent
 
         def image_of(f) -> str:  # the same file however the path is spelled
-            return str(_find_image(root, f.file_path) or os.path.normpath(root / f.file_path))
+            return str(find_image(root, f.file_path) or os.path.normpath(root / f.file_path))
 
         frames, repeated = _drop_repeats(tf.frames, image_of)
         repeats = [f.file_path for f in repeated]
         names = _unique_names([f.file_path for f in frames])
         views, missing = [], []
         for f, name in zip(frames, names, strict=True):
-            found = _find_image(root, f.file_path)
+            found = find_image(root, f.file_path)
             if found is None:
                 missing.append((str(root / f.file_path), name))
                 continue
@@ -262,7 +264,6 @@ def pick_views(posed: PosedSet, spec: Sequence[str] | None = None, count: int = 
             pose, a count outside 2-6 (the generator takes 2 to :data:`MAX_INPUTS` views) or
             above the distinct poses available, fewer than 2 distinct poses.
     """
-    from prosplat.data.rigs import farthest_point_sampling
 
     n = len(posed.views)
     names = posed.names
@@ -409,8 +410,6 @@ def load_views(
     (antialiased bilinear) with the intrinsics scaled to match; ``size`` None keeps the first
     view's size."""
     from tqdm import tqdm
-
-    from prosplat.core.image_io import composite, read_image_rgba
 
     images, cameras = [], []
     it = tqdm(indices, desc="reading images", unit="image", disable=not progress)

@@ -28,7 +28,7 @@ def _background(background: Tensor | None, like: Tensor) -> Tensor:
     return bg
 
 
-def _gsplat_available(device: torch.device) -> bool:
+def gsplat_available(device: torch.device) -> bool:
     if device.type != "cuda":
         return False
     try:
@@ -67,7 +67,7 @@ def render(
         gaussians.validate()
     bg = _background(background, gaussians.means)
     if backend == "auto":  # the fused projection: the same image, ~1.3x faster at 128 px
-        backend = "gsplat" if _gsplat_available(gaussians.device) else "cpu-fused"
+        backend = "gsplat" if gsplat_available(gaussians.device) else "cpu-fused"
     if backend == "gsplat":
         from prosplat.render.gsplat_backend import render_gsplat
 

@@ -27,10 +27,10 @@ def render_views(
     numbers (the render tests hold them together) through ~100 ops whose autograd cost ~20 %
     of a training step (measured by ``benchmarks/generator_step.py``, in git history).
     """
-    from prosplat.render import _gsplat_available
+    from prosplat.render import gsplat_available
 
     device = gaussians.device
-    if device.type == "cuda" and _gsplat_available(device):
+    if device.type == "cuda" and gsplat_available(device):
         from prosplat.render.gsplat_backend import render_gsplat_views
 
         return render_gsplat_views(gaussians, cams, bg)
