@@ -12,4 +12,3 @@ def blank():
     from addon_support import reset_scene
 
     return reset_scene()
-
