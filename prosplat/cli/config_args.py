@@ -20,6 +20,7 @@ import types
 import typing
 from collections.abc import Collection, Mapping
 from functools import cache
+from pathlib import PurePath
 from typing import Any
 
 
@@ -85,7 +86,8 @@ def add_config_arguments(
         doc = spec.pop("help", None) or f.metadata.get("help") or docs.get(f.name, "")
         doc = doc.replace("%", "%%")  # argparse formats help with %
         if has_default:
-            doc = f"{doc} (default: {default!r})" if doc else f"(default: {default!r})"
+            shown = str(default) if isinstance(default, PurePath) else repr(default)
+            doc = f"{doc} (default: {shown})" if doc else f"(default: {shown})"
         flag = f"--{f.name.replace('_', '-')}"
         if hints[f.name] is bool:
             spec.setdefault("action", argparse.BooleanOptionalAction)

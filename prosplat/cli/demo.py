@@ -49,22 +49,25 @@ DEMO_SIZE = 64
 class DemoConfig:
     """What ``prosplat demo`` runs (every field is a command-line option)."""
 
+    # where the report, pictures and metrics go (a new out-N folder when it holds results)
     out: Path = Path("out/demo")
-    scene: str = DEMO_SCENE
-    seed: int = DEMO_SEED
-    size: int = DEMO_SIZE  # model resolution, a multiple of 32
-    render_scale: int = 2  # Blender renders size * render_scale, downsampled to size
-    inputs: int = 4
-    targets: int = 8
+    scene: str = DEMO_SCENE  # scene family or hard scene name (scenes.builders)
+    seed: int = DEMO_SEED  # scene seed (the default is a test scene no model saw)
+    # model resolution, a multiple of 32 (64 keeps the demo fast; the shipped generator runs
+    # up to 128)
+    size: int = DEMO_SIZE
+    render_scale: int = 2  # Blender renders size x this, downsampled to size
+    inputs: int = 4  # input views, 2-6
+    targets: int = 8  # new target views, 1-16
     samples: int = 16  # Cycles samples per rendered pixel
-    budget: float | None = None  # None: the automatic Gaussian budget
-    bf16: bool = False  # stage 2 under bfloat16 autocast
+    budget: float | None = None  # Gaussians to keep: a count or a fraction (None: automatic)
+    bf16: bool = False  # run stage 2 under bfloat16 autocast
     refine_steps: int = 0  # refine the budget's Gaussians against the inputs (0: off)
     refine_seconds: float | None = None  # ... or for this many seconds
     weights: str | None = None  # generator checkpoint (None: the shipped one)
     generator: str | None = None  # a DepthSplat checkpoint (.pth) as stage 1 instead
     improve: str | None = None  # stage-2 checkpoint (None: the shipped one)
-    overwrite: bool = False
+    overwrite: bool = False  # replace earlier results in --out (the demo's own files)
 
     def check(self) -> None:
         if self.size < 32 or self.size % 32:
