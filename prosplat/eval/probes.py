@@ -1,10 +1,10 @@
 """The views the no-pattern check runs stage 2 on: hazed procedural renders of different
 scenes, each with a sharp reference from a nearby camera.
 
-Shared by ``tests/improve/test_stage2_no_pattern.py`` (the shipped weights) and
-``benchmarks/stage2_pattern.py``, so a candidate is scored on exactly the
-views the test will see before it ships. Each view: a sky-to-floor gradient and random
-ellipses (sharp), blurred and washed out as the generator's renders of unseen views are;
+Used by ``tests/improve/test_stage2_no_pattern.py`` on the shipped weights; score a candidate
+with :func:`probe_changes` and :func:`probe_scores` before it ships, and it is scored on exactly
+the views the test will see. Each view: a sky-to-floor gradient and random ellipses (sharp),
+blurred and washed out as the generator's renders of unseen views are;
 with a warp-input model the reference lands on a random half-plane, and as in a real warp the
 invalid pixels still carry colours (grid_sample's border), never zeros.
 """

@@ -2,8 +2,8 @@
 
 Stage 2 is run on 64 washed-out renders of different procedural scenes (a sky-to-floor
 gradient and random ellipses, blurred and hazed as the generator's renders of unseen views
-are), each with a sharp reference from a nearby camera (:mod:`prosplat.eval.probes`;
-``benchmarks/stage2_pattern.py`` scores candidate weights on the same views). What it adds
+are), each with a sharp reference from a nearby camera (:mod:`prosplat.eval.probes`,
+where a candidate's weights are scored on the same views). What it adds
 is then averaged (:func:`~prosplat.improve.pattern.fixed_pattern_score`: position-locked
 structure against a shuffled control) and its power spectrum searched for a lattice at the
 VAE's 8-px cell and the U-Net's 16-px cell (:func:`~prosplat.improve.pattern.lattice_score`, any phase).
