@@ -156,7 +156,7 @@ def _out_of_bounds(
     return out | ~seen
 
 
-def _bilinear(dmap: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
+def bilinear_depth(dmap: Tensor, uv: Tensor) -> tuple[Tensor, Tensor]:
     """Bilinear read of ``dmap [H,W]`` at pixel coordinates ``uv [M,2]`` (centres at +0.5,
     border pixels replicated): the value [M] and the four pixels it mixes [M,4]."""
     h, w = dmap.shape
@@ -222,7 +222,7 @@ def _duplicates(
             col = col.clamp(0, cam.width - 1).long()
             row = row.clamp(0, cam.height - 1).long()
             dmap = depths[i].to(device=means.device, dtype=torch.float64)
-            d, corners = _bilinear(dmap, uv)
+            d, corners = bilinear_depth(dmap, uv)
             valid = ((corners > 0) & torch.isfinite(corners)).all(dim=1)
             spread = (corners - d[:, None]).abs().amax(dim=1)
             agree = (d - z).abs() <= tol * z + px / res_j + spread

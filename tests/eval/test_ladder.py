@@ -30,6 +30,7 @@ from prosplat.eval.ladder import (
     true_depth_gaussians,
     valid_mask,
 )
+from prosplat.eval.ladder.cli import DEFAULT_ROWS
 from prosplat.metrics import psnr
 from prosplat.render import render
 
@@ -427,6 +428,25 @@ def test_refine_rows_fit_the_inputs_from_a_smaller_generator_run(data):
     messages = []
     assert build_rungs(["refine"], LadderContext(), log=messages.append) == []
     assert "--refine-steps" in messages[0]
+
+
+def test_consistent_rows_drop_only_from_the_generator_rows_gaussians(data):
+    """The opt-in ``consistent`` rows draw the generator row's Gaussians less those the
+    cross-view check drops: a subset of them, never more, and all of them with a margin no
+    point can exceed; the row is not among the defaults."""
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    ctx = LadderContext({"generator_size": 32, "improve": False})
+    rungs = {r.name: r for r in build_rungs(["generator", "consistent"], ctx)}
+    assert list(rungs) == ["generator", "generator consistent", "generator filled consistent"]
+    g = rungs["generator"].reconstruct(inp)
+    kept = rungs["generator consistent"].reconstruct(inp)
+    assert 0 < len(kept) <= len(g)
+    assert torch.isin(kept.means[:, 0], g.means[:, 0]).all()
+    lenient = LadderContext({"generator_size": 32, "improve": False, "consistency_tau": 0.999})
+    assert len(build_rungs(["consistent"], lenient)[0].reconstruct(inp)) == len(g)
+    assert "consistent" not in DEFAULT_ROWS
 
 
 def test_distill_rows_fit_the_enhanced_targets_of_the_scene(data):

@@ -11,9 +11,9 @@ from prosplat import Camera, Gaussians, render
 from prosplat.data.overlap import covisibility
 from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 from prosplat.geometry.budget import (
-    _bilinear,
     _budget_count,
     _dither_rank,
+    bilinear_depth,
     budget_arg,
     importance,
     prune_gaussians,
@@ -113,12 +113,12 @@ def test_bilinear_depth_read_is_exact_on_linear_maps_and_replicates_borders():
     rows, cols = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
     dmap = (2.0 + 0.5 * cols + 0.25 * rows).double()  # depth at pixel centre (c+.5, r+.5)
     uv = torch.tensor([[0.5, 0.5], [3.2, 1.7], [6.5, 4.5], [1.0, 2.0]], dtype=torch.float64)
-    value, corners = _bilinear(dmap, uv)
+    value, corners = bilinear_depth(dmap, uv)
     expect = 2.0 + 0.5 * (uv[:, 0] - 0.5) + 0.25 * (uv[:, 1] - 0.5)
     torch.testing.assert_close(value, expect)
     # the 2x2 pixels around the point (their spread is the slope term of the duplicate test)
     assert corners.shape == (4, 4) and torch.equal(corners[1], dmap[1:3, 2:4].reshape(-1))
-    edge, _ = _bilinear(dmap, torch.tensor([[0.1, 0.2], [6.9, 4.9]], dtype=torch.float64))
+    edge, _ = bilinear_depth(dmap, torch.tensor([[0.1, 0.2], [6.9, 4.9]], dtype=torch.float64))
     torch.testing.assert_close(edge, torch.stack([dmap[0, 0], dmap[-1, -1]]))
 
 

@@ -36,6 +36,7 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.eval.ladder.geometry import true_depth_gaussians
+from prosplat.geometry.consistency import DEFAULT_TAU, cross_view_check
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import reference_warp, warp_for
 from prosplat.pipeline.enhance import MAX_SPLAT_RADIUS, OTHER_VIEWS_OPACITY
@@ -338,6 +339,57 @@ def fill_rungs(ctx: LadderContext) -> list[Rung]:
         return true_depth_view(state, cam, inp, fill_holes=True)
 
     return rungs + [Rung("true depth filled", _true_depth, true_filled, "true depth", depth=True)]
+
+
+def _consistent_gaussians(
+    ctx: LadderContext, tau: float, votes: int
+) -> Callable[[SceneInputs], Any]:
+    """The generator's Gaussians as :func:`_generator_gaussians` makes them, less those
+    ``votes`` other input views saw through (:func:`prosplat.geometry.consistency
+    .cross_view_check`, margin ``tau``, on the reconstruction's own depth maps and cameras)."""
+
+    def reconstruct(inp: SceneInputs):
+        rec = ctx.model.reconstruct(
+            inp.images, inp.cameras, inp.near, inp.far, budget=ctx.options.get("budget"),
+            generator_height=ctx.options.get("generator_size"),
+        )  # fmt: skip
+        g = rec.gaussians
+        check = cross_view_check(
+            rec.depths, rec.cameras, tau, means=g.means, view_index=rec.view_index,
+            min_votes=votes,
+        )  # fmt: skip
+        return g[check.keep.to(g.means.device)]
+
+    return reconstruct
+
+
+@register("consistent")
+def consistent_rungs(ctx: LadderContext) -> list[Rung]:
+    """Opt-in (issue 68, "Gaussians that the inputs agree on"): the generator's Gaussians
+    less the floaters another input saw through
+    (:func:`prosplat.geometry.consistency.cross_view_check`; the options
+    ``consistency_tau``, default :data:`~prosplat.geometry.consistency.DEFAULT_TAU`, and
+    ``consistency_votes``, default 1, set its margin and how many views must contradict;
+    the command line has no flag for them yet), drawn as the ``fill`` rows draw
+    theirs: ``generator consistent``, ``generator filled consistent`` and, per improvement
+    model, ``enhanced consistent`` and ``enhanced filled consistent``, so they pair with the
+    plain rows target by target. The pipeline does not run the check."""
+    tau = float(ctx.options.get("consistency_tau") or DEFAULT_TAU)
+    votes = int(ctx.options.get("consistency_votes") or 1)
+    recon, dtype = _consistent_gaussians(ctx, tau, votes), _dtype(ctx)
+    key = "consistent"
+    rungs = [
+        Rung("generator consistent", recon, splat_view, key, depth=True),
+        Rung("generator filled consistent", recon, _filled_view(), key, depth=True),
+    ]
+    for suffix, imp in ctx.improvers("enhanced consistent").items():
+        rungs += [
+            Rung(f"enhanced consistent{suffix}", recon, _enhanced_view(imp, dtype), key,
+                 depth=True),
+            Rung(f"enhanced filled consistent{suffix}", recon, _filled_view(imp, dtype), key,
+                 depth=True),
+        ]  # fmt: skip
+    return rungs
 
 
 def _variant_rungs(
