@@ -74,6 +74,31 @@ def check_view_index(view_index, n: int, n_views: int, what: str = "") -> None:
         )
 
 
+def check_depth_maps(depths: Tensor, cameras) -> None:
+    """``cameras``: a non-empty list of :class:`Camera`; ``depths``: one float map [V,H,W]
+    per camera, at that camera's size. The budget and the cross-view check both read the
+    input views' depth maps at the cameras' pixels, so both refuse the same mistakes with the
+    same messages."""
+    if not isinstance(cameras, (list, tuple)) or not all(isinstance(c, Camera) for c in cameras):
+        raise ValueError("cameras must be a list of prosplat.Camera")
+    if len(cameras) == 0:
+        raise ValueError("cameras must hold at least one Camera (one per input view)")
+    if not isinstance(depths, Tensor) or depths.ndim != 3 or depths.shape[0] != len(cameras):
+        shape = list(depths.shape) if isinstance(depths, Tensor) else type(depths).__name__
+        raise ValueError(
+            f"depths must be a [V={len(cameras)}, H, W] tensor (one map per camera), got {shape}"
+        )
+    if not depths.is_floating_point():
+        raise ValueError(f"depths must be a float tensor, got {depths.dtype}")
+    for i, cam in enumerate(cameras):
+        if (cam.height, cam.width) != tuple(depths.shape[1:]):
+            raise ValueError(
+                f"depths maps are {depths.shape[2]}x{depths.shape[1]} but cameras[{i}] is "
+                f"{cam.width}x{cam.height}; pass the cameras at the size of the depth maps "
+                "(the size each view's pixels were unprojected at)"
+            )
+
+
 def _check(
     gaussians: Gaussians,
     view_index: Tensor,
@@ -89,24 +114,8 @@ def _check(
     if not isinstance(gaussians, Gaussians):
         raise ValueError(f"gaussians must be prosplat.Gaussians, got {type(gaussians).__name__}")
     n = len(gaussians)
-    if not isinstance(cameras, (list, tuple)) or not all(isinstance(c, Camera) for c in cameras):
-        raise ValueError("cameras must be a list of prosplat.Camera")
-    if len(cameras) == 0:
-        raise ValueError("cameras must hold at least one Camera (one per input view)")
+    check_depth_maps(depths, cameras)
     check_view_index(view_index, n, len(cameras))
-    if not isinstance(depths, Tensor) or depths.ndim != 3 or depths.shape[0] != len(cameras):
-        shape = list(depths.shape) if isinstance(depths, Tensor) else type(depths).__name__
-        raise ValueError(
-            f"depths must be a [V={len(cameras)}, H, W] tensor (one map per camera), got {shape}"
-        )
-    if not depths.is_floating_point():
-        raise ValueError(f"depths must be a float tensor, got {depths.dtype}")
-    for i, cam in enumerate(cameras):
-        if (cam.height, cam.width) != tuple(depths.shape[1:]):
-            raise ValueError(
-                f"depths maps are {depths.shape[2]}x{depths.shape[1]} but cameras[{i}] is "
-                f"{cam.width}x{cam.height}; pass the depth each view's pixels were unprojected at"
-            )
     for name, value in (("near", near), ("far", far)):
         if value is not None and not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a finite non-negative number or None, got {value}")

@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from prosplat.core.camera import Camera
-from prosplat.geometry.budget import bilinear_depth, check_view_index
+from prosplat.geometry.budget import bilinear_depth, check_depth_maps, check_view_index
 
 __all__ = ["ConsistencyResult", "DEFAULT_TAU", "cross_view_check"]
 
@@ -74,21 +74,7 @@ class ConsistencyResult:
 
 
 def _check_inputs(depths, cameras, tau: float, min_votes: int) -> None:
-    if not isinstance(cameras, (list, tuple)) or not all(isinstance(c, Camera) for c in cameras):
-        raise ValueError("cameras must be a list of prosplat.Camera")
-    if not isinstance(depths, Tensor) or depths.ndim != 3 or depths.shape[0] != len(cameras):
-        shape = list(depths.shape) if isinstance(depths, Tensor) else type(depths).__name__
-        raise ValueError(
-            f"depths must be a [V={len(cameras)}, h, w] tensor (one map per camera), got {shape}"
-        )
-    if not depths.is_floating_point():
-        raise ValueError(f"depths must be a float tensor, got {depths.dtype}")
-    for i, cam in enumerate(cameras):
-        if (cam.height, cam.width) != tuple(depths.shape[1:]):
-            raise ValueError(
-                f"depth maps are {depths.shape[2]}x{depths.shape[1]} but cameras[{i}] is "
-                f"{cam.width}x{cam.height}; pass the cameras at the depth maps' size"
-            )
+    check_depth_maps(depths, cameras)
     if not (math.isfinite(tau) and 0 <= tau < 1):
         raise ValueError(f"tau must lie in [0, 1), got {tau}")
     if isinstance(min_votes, bool) or not isinstance(min_votes, int) or min_votes < 1:
