@@ -45,6 +45,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from prosplat.core.paths import write_text_atomic
+
 WEIGHTS_NAME = "checkpoint.safetensors"
 STATE_NAME = "state.pt"
 
@@ -376,6 +378,4 @@ def truncate_log(path: str | Path, step: int) -> None:
     if not path.exists():
         return
     keep = [ln for ln in path.read_text().splitlines() if ln and json.loads(ln)["step"] <= step]
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text("".join(ln + "\n" for ln in keep))
-    os.replace(tmp, path)
+    write_text_atomic(path, "".join(ln + "\n" for ln in keep))

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from prosplat.core.paths import write_text_atomic
+
 PROTOCOL = 1
 # Exit codes of `python -m prosplat.worker`: the status file says the same in words.
 EXIT_DONE, EXIT_ERROR, EXIT_CANCELLED, EXIT_USAGE = 0, 1, 3, 2
@@ -71,9 +73,7 @@ def paths_for(job: str | Path) -> dict[str, Path]:
 
 def write_json_atomic(path: Path, data: dict) -> None:
     """Write JSON through a temporary sibling and a rename, so a reader never sees half."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=1, default=str))
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(data, indent=1, default=str))
 
 
 def load_arrays(path: str | Path) -> dict[str, np.ndarray]:
