@@ -13,6 +13,7 @@ NUMPY_RANGE = "<3,>=1.24"
 #: (project name, version): everything prosplat needs at run time, numpy aside.
 PINS = (
     ("anyio", "4.16.0"),
+    ("av", "18.1.0"),
     ("certifi", "2026.10.18"),
     ("charset-normalizer", "3.5.2"),
     ("click", "8.5.1"),
@@ -35,6 +36,7 @@ PINS = (
     ("packaging", "26.3"),
     ("pillow", "13.0.0"),
     ("plyfile", "1.1.3"),
+    ("pycolmap", "4.2.1"),
     ("PyYAML", "6.0.3"),
     ("regex", "2026.11.15"),
     ("requests", "2.34.2"),
@@ -58,6 +60,7 @@ ELSEWHERE = (
 #: Estimated download of each pinned wheel, MB (this platform's CPU build for torch).
 WHEEL_MB = {
     "anyio": 0.1,
+    "av": 35.8,
     "certifi": 0.1,
     "charset-normalizer": 0.3,
     "click": 0.1,
@@ -80,6 +83,7 @@ WHEEL_MB = {
     "packaging": 0.1,
     "pillow": 7.1,
     "plyfile": 0.0,
+    "pycolmap": 38.2,
     "PyYAML": 0.8,
     "regex": 0.8,
     "requests": 0.1,
