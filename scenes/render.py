@@ -31,7 +31,7 @@ from prosplat.convert.nerfstudio import Frame, write_transforms
 from prosplat.core.camera import Camera
 from prosplat.core.image_io import write_depth
 from prosplat.data.overlap import overlap_matrix
-from prosplat.data.rigs import choose_rig
+from prosplat.data.rigs import arc_rig, choose_rig
 from prosplat.data.splits import split_of
 from scenes.builders import SceneInfo, build_scene
 
@@ -168,6 +168,7 @@ def render_scene(
     lens_mm: float | None = None,
     progress: bool = False,
     blend: Path | None = None,
+    arc: int | None = None,
 ) -> Path:
     """Build and render scene ``name`` (a family or a hard scene) for ``seed`` into ``out``.
 
@@ -176,6 +177,9 @@ def render_scene(
     process turns them into a progress bar: Blender's own log lines carry no count).
     ``blend`` also saves the built scene, with one camera object per rendered view, as a
     .blend file there (for artists to open; never replaces an existing file).
+    ``arc`` N renders N views evenly spaced over the first quarter of the trajectory instead of a
+    sparse rig (:func:`prosplat.data.rigs.arc_rig`: ``n_inputs`` inputs, the rest targets;
+    ``n_targets`` is ignored): the overlapping sweep that the structure-from-motion tests use.
     """
     final = out / scene_folder_name(name, seed)
     if final.exists():
@@ -189,7 +193,10 @@ def render_scene(
     try:
         info: SceneInfo = build_scene(name, seed)
         build_seconds = time.perf_counter() - t0
-        rig = choose_rig(info.trajectory, n_inputs, n_targets, seed)
+        if arc:
+            rig = arc_rig(info.trajectory, arc, n_inputs)
+        else:
+            rig = choose_rig(info.trajectory, n_inputs, n_targets, seed)
         configure_render(
             size, samples, denoise, seed, threads or os.cpu_count() or 1, denoise_quality
         )
@@ -322,6 +329,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--progress", action="store_true", help="print PROSPLAT_PROGRESS lines")
     ap.add_argument("--blend", type=Path, default=None, help="also save the scene as a .blend")
+    ap.add_argument(
+        "--arc",
+        type=int,
+        default=None,
+        help="render N views evenly spaced over a quarter of the trajectory (a dense, overlapping "
+        "sweep for structure from motion; --targets is ignored)",
+    )
     args = ap.parse_args(argv)
 
     def one(name: str, seed: int) -> Path:
@@ -338,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
             denoise_quality=args.denoise_quality,
             progress=args.progress,
             blend=args.blend,
+            arc=args.arc,
         )
 
     if args.jobs_from_stdin:

@@ -20,7 +20,7 @@ LAYERS: list[set[str]] = [
     {"core"},
     {"metrics", "render"},
     {"convert", "data"},
-    {"geometry"},
+    {"geometry", "poses"},
     {"generator", "improve"},
     {"pipeline"},
     {"eval"},

@@ -23,6 +23,7 @@ from . import capture, pointcloud, runtime, steps
 __all__ = [
     "capture_inputs",
     "export_ply",
+    "import_photos",
     "import_ply",
     "import_posed_images",
     "reconstruct",
@@ -43,6 +44,19 @@ def import_posed_images(path, images_dir=None, name=None, scene=None, set_resolu
     result = runtime.run_sync(*steps.posed_images_job(str(path), images_dir and str(images_dir)))
     name = name or steps.inputs_name(str(path))
     return steps.apply_posed_images(result, scene, name, set_resolution)
+
+
+def import_photos(path, pose_dir=None, feature_size=None, max_frames=None, scene=None,
+                  set_resolution=True):  # fmt: skip
+    """Cameras for a folder of photos (or a photo in it) or a video with no poses: the worker
+    finds the poses (``prosplat.poses``; pose folder ``pose_dir`` or ``<folder>_prosplat_poses``
+    beside the photos), then they are imported as :func:`import_posed_images` imports;
+    returns (collection, result dict: ``folder``, ``unregistered``, ``skipped``, ...)."""
+    scene = _scene(scene)
+    job = steps.photos_job(str(path), pose_dir and str(pose_dir), feature_size, max_frames)
+    result = runtime.run_sync(*job)
+    coll, _ = steps.apply_photos(result, scene, set_resolution)
+    return coll, result
 
 
 def capture_inputs(cameras, folder, scene=None):

@@ -1,5 +1,6 @@
-"""The ProSplat operators: import posed images, capture inputs, reconstruct, render view,
-PLY import/export. Each is a thin shell over :mod:`.steps` run through :mod:`.modal`."""
+"""The ProSplat operators: import posed images, import photos (poses found in the worker),
+capture inputs, reconstruct, render view, PLY import/export. Each is a thin shell over
+:mod:`.steps` run through :mod:`.modal`."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import bpy
 from bpy.props import BoolProperty, FloatProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..core import jobs
+from ..core import jobs, photos
 from . import capture, modal, pointcloud, runtime, steps
 
 RENDER_MODES = [
@@ -54,6 +55,60 @@ class PROSPLAT_OT_import_posed_images(ImportHelper, modal.JobOperator, bpy.types
         settings(context).render_mode = "TARGETS"
         return (f"imported {len(coll.objects)} input images into '{coll.name}' and "
                 f"{len(targets.objects)} target cameras into '{targets.name}'")  # fmt: skip
+
+
+class PROSPLAT_OT_import_photos(ImportHelper, modal.JobOperator, bpy.types.Operator):
+    """Find the camera poses of a folder of photos or a video in the worker, then import the
+    photos as cameras showing them (pick a photo to take its folder, or a video)"""
+
+    bl_idname = "prosplat.import_photos"
+    bl_label = "Import Photos"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filter_glob: StringProperty(default=photos.FILTER_GLOB, options={"HIDDEN"})
+    directory: StringProperty(subtype="DIR_PATH", options={"HIDDEN", "SKIP_SAVE"})
+    pose_dir: StringProperty(
+        name="Pose Folder", subtype="DIR_PATH",
+        description="Where the poses and the photos' working copies go (empty: beside the "
+        "photos, FOLDER_prosplat_poses; an existing one is kept and -2, -3... is used)",
+    )  # fmt: skip
+    # the defaults of prosplat.poses.PoseOptions (the add-on cannot import it without torch)
+    feature_size: IntProperty(
+        name="Feature Size", default=1024, min=256, soft_max=3200,
+        description="Longest side in pixels the photos are searched for features at: larger "
+        "matches more in big photos and takes longer",
+    )  # fmt: skip
+    max_frames: IntProperty(
+        name="Video Frames", default=60, min=2, soft_max=300,
+        description="Most frames taken from a video (the sharpest of each equal part)",
+    )  # fmt: skip
+    set_resolution: BoolProperty(
+        name="Set Scene Resolution", default=True,
+        description="Render at the first photo's size so the cameras frame what the photos show",
+    )  # fmt: skip
+
+    def _path(self) -> str:
+        return self.filepath or self.directory
+
+    def invoke(self, context, event):
+        self._browsed = True  # execute comes from the file browser: run the job modally
+        return ImportHelper.invoke(self, context, event)
+
+    def execute(self, context):
+        # minutes of pose estimation must not freeze Blender: after the file browser the job
+        # runs modally with progress and Esc (a script's EXEC_DEFAULT call runs to the end)
+        if getattr(self, "_browsed", False) and context.window and not bpy.app.background:
+            return modal.JobOperator.invoke(self, context, None)
+        return modal.JobOperator.execute(self, context)
+
+    def prepare(self, context):
+        return steps.photos_job(self._path(), self.pose_dir or None, self.feature_size,
+                                self.max_frames)  # fmt: skip
+
+    def apply(self, context, result):
+        coll, text = steps.apply_photos(result, context.scene, self.set_resolution)
+        settings(context).inputs = coll
+        return text
 
 
 class PROSPLAT_OT_reconstruct(modal.JobOperator, bpy.types.Operator):
@@ -253,6 +308,7 @@ class PROSPLAT_OT_capture_inputs(bpy.types.Operator):
 
 CLASSES = (
     PROSPLAT_OT_import_posed_images,
+    PROSPLAT_OT_import_photos,
     PROSPLAT_OT_capture_inputs,
     PROSPLAT_OT_reconstruct,
     PROSPLAT_OT_render_view,

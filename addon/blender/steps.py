@@ -11,7 +11,7 @@ from typing import Any
 
 import bpy
 
-from ..core import depthsplat_file
+from ..core import depthsplat_file, photos
 from . import cameras, pointcloud, runtime
 
 NEAR_PROP, FAR_PROP = "prosplat_near", "prosplat_far"
@@ -100,6 +100,7 @@ def apply_posed_images(result: dict, scene, name: str, set_resolution: bool = Tr
             f"{', ...' if len(missing) > 5 else ''}); check the image folder"
         )
     names = free_names([f["name"] for f in frames])
+    images_before = set(bpy.data.images.keys())
     coll = bpy.data.collections.new(name)
     made = [coll]
     try:
@@ -122,6 +123,8 @@ def apply_posed_images(result: dict, scene, name: str, set_resolution: bool = Tr
     except BaseException:
         for c in made:
             remove_collection(c)
+        for img in [i for i in bpy.data.images if i.name not in images_before and i.users == 0]:
+            bpy.data.images.remove(img)  # loaded for the cameras just removed: no orphans
         raise
     if set_resolution:
         cameras.set_scene_resolution(scene, inputs[0]["blender"])
@@ -130,6 +133,31 @@ def apply_posed_images(result: dict, scene, name: str, set_resolution: bool = Tr
                 free_names(["ProSplat Camera"])[0], inputs[0]["blender"], None,
                 scene.collection, result.get("far"))  # fmt: skip
     return coll
+
+
+# ---- photos (no poses yet) --------------------------------------------------------------------
+def photos_job(path: str, pose_dir: str | None = None, feature_size: int | None = None,
+               max_frames: int | None = None) -> tuple[str, dict]:  # fmt: skip
+    """The ``poses`` job for a folder of photos or a video (a chosen photo means its
+    folder); the pose folder is ``pose_dir`` or :func:`..core.photos.default_pose_folder`."""
+    source = photos.photo_source(bpy.path.abspath(path))
+    out = Path(bpy.path.abspath(pose_dir)) if pose_dir else photos.default_pose_folder(source)
+    if out.resolve() == source.resolve():
+        raise ValueError(f"the pose folder {out} is the photos' own folder; choose another")
+    params: dict[str, Any] = {"source": str(source), "out": str(out)}
+    if feature_size:
+        params["feature_size"] = int(feature_size)
+    if max_frames:
+        params["max_frames"] = int(max_frames)
+    return "poses", params
+
+
+def apply_photos(result: dict, scene, set_resolution: bool = True):
+    """The cameras of a ``poses`` result, made exactly as Import Posed Images makes them, in
+    a collection named for the folder (or video); returns (collection, one-line summary)."""
+    name = photos.collection_name(Path(result["source"]))
+    coll = apply_posed_images(result, scene, name, set_resolution)
+    return coll, photos.describe(result, coll.name)
 
 
 def targets_of(inputs):

@@ -10,6 +10,7 @@ from . import cameras, modal, pointcloud, runtime, splat_display, steps
 from .operators import (
     PROSPLAT_OT_capture_inputs,
     PROSPLAT_OT_export_ply,
+    PROSPLAT_OT_import_photos,
     PROSPLAT_OT_import_ply,
     PROSPLAT_OT_import_posed_images,
     PROSPLAT_OT_reconstruct,
@@ -75,7 +76,9 @@ class PROSPLAT_PT_inputs(_Panel, bpy.types.Panel):
                 layout.label(text=f"Targets: {targets.name} ({len(targets.objects)})",
                              icon="OUTLINER_COLLECTION")  # fmt: skip
         layout.prop(s, "background")
-        layout.operator(PROSPLAT_OT_import_posed_images.bl_idname, icon="IMPORT")
+        col = layout.column(align=True)
+        col.operator(PROSPLAT_OT_import_posed_images.bl_idname, icon="IMPORT")
+        col.operator(PROSPLAT_OT_import_photos.bl_idname, icon="IMAGE_DATA")
         box = layout.box()
         box.label(text="Synthetic scene: render selected cameras")
         box.prop(s, "capture_dir", text="")
@@ -143,6 +146,8 @@ def menu_import(self, context):
     self.layout.operator(PROSPLAT_OT_import_ply.bl_idname, text="Gaussian Splat (.ply, ProSplat)")
     self.layout.operator(PROSPLAT_OT_import_posed_images.bl_idname,
                          text="Posed Images (transforms.json, COLMAP)")  # fmt: skip
+    self.layout.operator(PROSPLAT_OT_import_photos.bl_idname,
+                         text="Photos or Video, No Poses (ProSplat)")  # fmt: skip
 
 
 def menu_export(self, context):

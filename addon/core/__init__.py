@@ -8,4 +8,5 @@ Python (``tests/addon/test_addon_layers.py``), and the Blender layer imports it 
 - :mod:`.requirements`, :mod:`.pins`, :mod:`.install`: what prosplat needs, the tested set,
   and the pip install of it
 - :mod:`.depthsplat_file`: what a DepthSplat file name says (model, licence, training size)
+- :mod:`.photos`: *Import Photos*' source (a folder or a video), pose folder and names
 """

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from prosplat.cli import bench, demo_command, reconstruct, scenes, train
+from prosplat.cli import bench, demo_command, poses, reconstruct, scenes, train
 from prosplat.cli import eval as eval_command  # not the builtin
 
 
@@ -19,13 +19,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_parser(sub)
     rc = sub.add_parser(
         "reconstruct",
-        help="your own posed images (transforms.json, COLMAP) -> Gaussians + enhanced renders",
+        help="your own posed images (transforms.json, COLMAP), or photos / a video without "
+        "poses -> Gaussians + enhanced renders",
         description=reconstruct.__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     reconstruct.add_arguments(rc)
     rc.set_defaults(func=reconstruct.run)
     eval_command.add_parser(sub)
+    poses.add_parser(sub)
     return parser
 
 

@@ -1,7 +1,11 @@
 """``prosplat reconstruct``: your own posed images -> Gaussians (PLY) and enhanced renders.
 
 INPUT is a ``transforms.json`` (nerfstudio, instant-ngp, NeRF synthetic; OpenCV or fisheye
-distortion allowed) or a COLMAP model (text or binary) with its images. The command
+distortion allowed) or a COLMAP model (text or binary) with its images; or a folder of photos
+with no poses, or a video: then the photos are posed first into ``--out``'s ``poses/``
+(``prosplat poses``; ``--feature-size``, ``--matching``), a re-run with the same photos and
+options reuses them, and the inputs are picked among the registered photos
+(:mod:`prosplat.cli.photo_input`). The command
 
 1. picks 2-6 input views (``--num-inputs`` by farthest-point sampling of the camera centres,
    or ``--inputs`` names / indices);
@@ -18,8 +22,9 @@ distortion allowed) or a COLMAP model (text or binary) with its images. The comm
    a ``transforms.json`` of pinhole cameras) raw and enhanced, and with ``--distill-steps``
    once more from the Gaussians fitted to the inputs and those enhanced views
    (:mod:`prosplat.pipeline.distill`: views that agree with each other);
-6. writes ``report.md`` and ``transforms.json`` (the undistorted, resized inputs, in
-   ``inputs/``), so the result opens in Blender with its cameras.
+6. writes ``report.md`` (for photos: how many were registered, each one that was not, each
+   file skipped) and ``transforms.json`` (the undistorted, resized inputs, in ``inputs/``),
+   so the result opens in Blender with its cameras.
 
 --out must be new or empty; ``--overwrite`` lets it replace this command's own files there.
 Everything is written into a hidden folder beside --out and moved there only when complete,
@@ -41,6 +46,7 @@ from pathlib import Path
 
 import torch
 
+from prosplat.cli import photo_input
 from prosplat.core.paths import staged_folder
 from prosplat.pipeline.distill import DEFAULT_DISTILL_STEPS
 from prosplat.pipeline.enhance import OTHER_VIEWS_OPACITY
@@ -69,7 +75,12 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     """Options shared by ``prosplat reconstruct`` and ``prosplat eval posed``."""
     from prosplat.pipeline.model import TRAINED_SIZE
 
-    p.add_argument("input", type=Path, help="transforms.json (or its folder) or a COLMAP model")
+    p.add_argument(
+        "input",
+        type=Path,
+        help="transforms.json (or its folder) or a COLMAP model; for reconstruct also a folder "
+        "of photos without poses, or a video (posed first, into OUT/poses)",
+    )
     p.add_argument("--out", type=Path, required=True, help="output folder (new or empty)")
     p.add_argument("--images", type=Path, default=None, help="image folder, if not the usual")
     p.add_argument(
@@ -156,6 +167,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_common_arguments(p)
+    photo_input.add_pose_arguments(p)
     p.add_argument(
         "--render",
         nargs="+",
@@ -192,13 +204,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def out_folder(out: Path, overwrite: bool) -> Path:
+def out_folder(out: Path, overwrite: bool, keep=None) -> Path:
     """``out`` when it is new, empty, or ``overwrite``; otherwise a ValueError: nothing the
-    user owns is written over. (Not ``prosplat.cli._fresh_folder``, which picks ``out-N``
-    instead and would make this module import the CLI that imports it.)"""
+    user owns is written over. Entries ``keep(name)`` is true for do not count (the poses of
+    an earlier run on the same photos: :func:`prosplat.cli.photo_input.is_pose_entry`). (Not
+    ``prosplat.cli._fresh_folder``, which picks ``out-N`` instead and would make this module
+    import the CLI that imports it.)"""
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file; give a folder")
-    if out.exists() and any(out.iterdir()) and not overwrite:
+    mine = out.exists() and any(not (keep and keep(e.name)) for e in out.iterdir())
+    if mine and not overwrite:
         raise ValueError(
             f"--out {out} is not empty; pick a new folder or pass --overwrite to replace this "
             "command's files there"
@@ -288,6 +303,8 @@ class ReconstructResult:
     gaussians: int
     size: tuple[int, int]
     timings: dict[str, float] = field(default_factory=dict)
+    #: the pose step, when the input was photos or a video (None for a posed set)
+    photos: photo_input.PhotoPoses | None = None
 
 
 def near_far(posed, inputs: list[int], cameras, near, far) -> tuple[float, float, str]:
@@ -432,14 +449,35 @@ def run_reconstruct(args: argparse.Namespace) -> ReconstructResult:
     """Everything ``prosplat reconstruct`` does (see the module docstring), written aside and
     moved to ``--out`` only when complete (:func:`~prosplat.core.paths.staged_folder`): a
     failure or Ctrl-C leaves no half-written folder, and ``--out`` as it was."""
-    out = out_folder(args.out, args.overwrite)  # refused before any work
+    kind = photo_input.photo_input(args.input)
+    keep = photo_input.is_pose_entry if kind else None
+    out = out_folder(args.out, args.overwrite, keep)  # refused before any work
+    photos = None
+    if kind:  # posed into out/poses before the rest is staged: a failure below keeps them
+        photo_input.check_before_posing(args)
+        _check_flags(args)
+        photos = photo_input.pose_step(args, out, kind)
     with staged_folder(out) as partial:
-        result = _reconstruct_into(partial, args)
+        result = _reconstruct_into(partial, args, photos)
     result.out = out
     return result
 
 
-def _reconstruct_into(out: Path, args: argparse.Namespace) -> ReconstructResult:
+def _check_flags(args: argparse.Namespace) -> None:
+    """The flag checks that need no posed set, before a pose step that takes minutes."""
+    from prosplat.pipeline.posed_views import model_size
+
+    if not 0 <= args.other_views_opacity <= 1:
+        raise ValueError(
+            f"--other-views-opacity must lie in [0, 1], got {args.other_views_opacity}"
+        )
+    model_size(args.size, args.size, args.size)  # a multiple of 32
+    refine_kwargs(args.refine_steps, args.refine_seconds)
+    if args.distill_steps < 0:
+        raise ValueError(f"--distill-steps must be >= 0 (0: off), got {args.distill_steps}")
+
+
+def _reconstruct_into(out: Path, args: argparse.Namespace, photos=None) -> ReconstructResult:
     """:func:`run_reconstruct`'s work, every file written into the new folder ``out``."""
     from tqdm import tqdm
 
@@ -524,6 +562,7 @@ def _reconstruct_into(out: Path, args: argparse.Namespace) -> ReconstructResult:
         gaussians=len(g),
         size=size,
         timings={"reconstruct": t_recon, "views": t_views},
+        photos=photos,
     )
     result.timings["total"] = time.perf_counter() - t_start
     _write_report(result, posed, note, rows, args)
@@ -571,6 +610,7 @@ def _write_report(result: ReconstructResult, posed, note: str, rows, args) -> No
         "",
         f"- input: `{posed.source}` ({posed.kind}, {len(posed.views)} frames; lens: "
         f"{', '.join(lens) + ' distortion, undistorted' if lens else 'pinhole'})",
+        *(photo_input.report_lines(result.photos) if result.photos else []),
         *([f"- {missing_note(posed)} (`--skip-missing`)"] if posed.missing else []),
         f"- input views: {', '.join(result.inputs)}",
         f"- model resolution: {result.size[0]}x{result.size[1]}",
@@ -612,4 +652,6 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {result.gaussians:,} Gaussians and {len(result.rendered)} renders (raw + "
         f"enhanced) to {result.out}; report: {result.out / 'report.md'}"
     )
+    if result.photos:
+        print(photo_input.summary_line(result.photos))
     return 0

@@ -289,6 +289,18 @@ def _intrinsics(camera: Camera, where: str) -> dict[str, Any]:
     }
 
 
+def _lens_keys(lens: Distortion | None) -> dict[str, Any]:
+    """A frame's lens as nerfstudio writes it (``camera_model`` and coefficients); {} for a
+    pinhole."""
+    if lens is None or (lens.is_identity and lens.model == "opencv"):
+        return {}
+    if lens.model == "fisheye":
+        keys = {"k1": lens.k1, "k2": lens.k2, "k3": lens.k3, "k4": lens.k4}
+        return {_CAMERA_MODEL_KEY: "OPENCV_FISHEYE", **keys}
+    keys = {"k1": lens.k1, "k2": lens.k2, "k3": lens.k3, "k4": lens.k4}
+    return {_CAMERA_MODEL_KEY: "OPENCV", **keys, "p1": lens.p1, "p2": lens.p2}
+
+
 def write_transforms(
     path: str | Path,
     frames: Sequence[Frame],
@@ -298,9 +310,12 @@ def write_transforms(
     """Write frames as a nerfstudio/instant-ngp ``transforms.json``; returns the file written.
 
     Intrinsics go to the top level when all frames share them (readable by every tool), and
-    per frame otherwise. ``meta`` keys are written at the top level; keys derived from the
-    cameras (intrinsics, distortion, camera_model, frames) are refused there. Floats are written
-    with full precision so reading back gives the same cameras.
+    per frame otherwise; so does a frame's lens (:class:`Frame` ``distortion``: ``camera_model``
+    ``OPENCV`` or ``OPENCV_FISHEYE`` with ``k1 k2 k3 k4 p1 p2``, which
+    ``read_transforms(..., allow_distortion=True)`` reads back). ``meta`` keys are written at
+    the top level; keys derived from the cameras (intrinsics, distortion, camera_model, frames)
+    are refused there. Floats are written with full precision so reading back gives the same
+    cameras.
 
     Raises:
         FileExistsError: the file exists and ``overwrite`` is False.
@@ -313,7 +328,10 @@ def write_transforms(
     if len(frames) == 0:
         raise ValueError("write_transforms needs at least one frame")
 
-    intr = [_intrinsics(f.camera, f"frame {i} ({f.file_path})") for i, f in enumerate(frames)]
+    intr = [
+        _intrinsics(f.camera, f"frame {i} ({f.file_path})") | _lens_keys(f.distortion)
+        for i, f in enumerate(frames)
+    ]
     shared = all(x == intr[0] for x in intr)
     out: dict[str, Any] = {_CAMERA_MODEL_KEY: "PINHOLE"}
     if shared:
@@ -321,11 +339,6 @@ def write_transforms(
     out.update(meta)
     out_frames = []
     for i, (f, k) in enumerate(zip(frames, intr, strict=True)):
-        if f.distortion is not None and not f.distortion.is_identity:
-            raise ValueError(
-                f"frame {i} ({f.file_path}) has lens distortion, which write_transforms does not "
-                "write; undistort it first (prosplat.convert.distortion.undistort_view)"
-            )
         bad = sorted((set(f.extra) & _RESERVED) | (set(f.extra) & set(_FRAME_KEYS)))
         if bad:
             raise ValueError(f"frame {i} ({f.file_path}): extra keys {bad} are reserved; drop them")

@@ -89,6 +89,26 @@ def choose_rig(
     return Rig(tuple(inputs), tuple(i for i, _ in picks), tuple(k for _, k in picks))
 
 
+def arc_rig(
+    trajectory: Sequence[Pose], n_views: int, n_inputs: int = 2, fraction: float = 0.25
+) -> Rig:
+    """``n_views`` poses evenly spaced over the first ``fraction`` of ``trajectory`` (a quarter
+    of an orbit's loop: a 90-degree arc, 6 degrees between 16 views), the dense, overlapping
+    sweep structure from motion needs (tests of :mod:`prosplat.poses`). ``n_inputs`` of them,
+    spread by farthest-point sampling, are the inputs; the rest are interpolation targets."""
+    t = len(trajectory)
+    if not 2 <= n_views <= t:
+        raise ValueError(f"an arc of {n_views} views needs 2-{t} (the trajectory's poses)")
+    if not 0 < fraction <= 1:
+        raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+    last = max(n_views - 1, round(fraction * (t - 1)))
+    views = sorted({round(k * last / (n_views - 1)) for k in range(n_views)})
+    eyes = torch.tensor([list(map(float, trajectory[i][0])) for i in views], dtype=torch.float64)
+    inputs = sorted(views[k] for k in farthest_point_sampling(eyes, min(n_inputs, n_views)))
+    targets = tuple(i for i in views if i not in inputs)
+    return Rig(tuple(inputs), targets, ("interpolation",) * len(targets))
+
+
 def pick_inputs(scene: SceneData, n: int) -> list[int]:
     """``n`` of the scene's input views, spread by farthest-point sampling of their centres."""
     ins = scene.input_indices

@@ -37,6 +37,7 @@ __all__ = [
     "NEAR_MARGIN",
     "PosedSet",
     "PosedView",
+    "holds_poses",
     "load_posed_set",
     "load_views",
     "model_size",
@@ -119,6 +120,17 @@ def _colmap_folder(path: Path) -> Path | None:
         if has_txt or has_bin:
             return d
     return None
+
+
+def holds_poses(path: str | Path) -> bool:
+    """True when :func:`load_posed_set` finds poses at ``path``: a ``.json`` file, or a
+    folder (or a file's folder) holding ``transforms.json`` or a COLMAP model. ``prosplat
+    reconstruct`` poses a folder of photos itself when this is False."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        return path.is_file()
+    has_transforms = path.is_dir() and (path / TRANSFORMS_NAME).is_file()
+    return has_transforms or _colmap_folder(path) is not None
 
 
 def _unique_names(names: list[str]) -> list[str]:

@@ -5,7 +5,8 @@ Frames (input views) are ``{"image": path, "camera": camera dict}`` and target v
 ``{"name": str, "camera": camera dict}``; camera dicts are described in
 :mod:`prosplat.convert.posed`. Gaussians come as ``"arrays"`` (the point attributes of
 :mod:`prosplat.convert.pointcloud`, as the Blender mesh holds them) plus an optional
-``"matrix_world"``, or as a ``"ply"`` path.
+``"matrix_world"``, or as a ``"ply"`` path. The ``poses`` task (camera poses for photos with
+none) is :mod:`prosplat.worker.pose_task`.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from prosplat.convert.posed import camera_from_dict, camera_to_blender_dict, rea
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
 from prosplat.worker.models import MODELS
+from prosplat.worker.pose_task import task_poses
 from prosplat.worker.protocol import Cancelled, Progress
 
 SIZE_MULTIPLE = 32  # the generator's image sizes are multiples of this (DepthSplat's: 16 or 32)
@@ -506,4 +508,5 @@ TASKS = {
     "export_ply": task_export_ply,
     "reconstruct": task_reconstruct,
     "render": task_render,
+    "poses": task_poses,
 }

@@ -24,8 +24,9 @@ from addon_support import ROOT, addon, ensure_registered  # noqa: E402
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_addon  # noqa: E402
 
-OPERATORS = ("import_posed_images", "capture_inputs", "reconstruct", "render_view",
-             "import_ply", "export_ply", "check_requirements", "install_requirements")  # fmt: skip
+OPERATORS = ("import_posed_images", "import_photos", "capture_inputs", "reconstruct",
+             "render_view", "import_ply", "export_ply", "check_requirements",
+             "install_requirements")  # fmt: skip
 
 
 def _registered() -> dict[str, bool]:

@@ -1,0 +1,32 @@
+"""Poses for photos that have none (issue 69): structure from motion with pycolmap on the CPU.
+
+A folder of photos, a list of photo files or a video becomes a pose folder (working copies,
+a COLMAP model, ``transforms.json``) in an upright frame at a sensible scale, which every
+posed-image reader of ProSplat opens. See :func:`estimate_poses`.
+"""
+
+from prosplat.poses.errors import PoseCancelled, PoseError
+from prosplat.poses.photos import list_photos
+from prosplat.poses.sfm import (
+    PoseOptions,
+    PoseResult,
+    estimate_poses,
+    load_pose_result,
+    quiet_colmap,
+    work_folder,
+)
+from prosplat.poses.video import extract_frames, is_video
+
+__all__ = [
+    "PoseCancelled",
+    "PoseError",
+    "PoseOptions",
+    "PoseResult",
+    "estimate_poses",
+    "extract_frames",
+    "is_video",
+    "list_photos",
+    "load_pose_result",
+    "quiet_colmap",
+    "work_folder",
+]

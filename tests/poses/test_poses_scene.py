@@ -1,0 +1,165 @@
+"""The pose step on a scene whose cameras are known: a tabletop rendered by the project's own
+renderer (``python -m scenes.render --arc``: 16 views 6 degrees apart on a 90-degree arc,
+384 px, 8 samples, about 30 s on 2 cores, rendered once per test session).
+
+The estimate lives in its own frame (upright, cameras 4 units out), so it is compared after
+the similarity transform that best maps it onto the truth: its rotation is the chordal mean
+of the camera orientations' differences (from the centres alone, 16 cameras on one arc leave
+the rotation about the arc's chord weakly fixed: Umeyama's fit there tilts by up to 4 degrees
+with centres that are right to 1 %), scale and shift then by least squares on the centres.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+import pytest
+
+from prosplat.convert.nerfstudio import read_transforms
+from prosplat.pipeline.posed_views import load_posed_set
+from prosplat.poses import PoseCancelled, estimate_poses, load_pose_result, work_folder
+
+pytestmark = pytest.mark.blender
+pytest.importorskip("bpy")
+
+SCENE, SEED = "tabletop", 10
+
+
+def render_arc(out: Path, views: int, size: int, samples: int) -> Path:
+    cmd = [
+        sys.executable, "-m", "scenes.render", "--name", SCENE, "--seed", str(SEED),
+        "--out", str(out), "--size", str(size), "--inputs", "2", "--arc", str(views),
+        "--samples", str(samples),
+    ]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return out / f"{SCENE}_{SEED:06d}"
+
+
+def photos_of(scene: Path, folder: Path) -> Path:
+    """The scene's images as a folder of photos (no poses), plus one broken file."""
+    folder.mkdir()
+    for png in sorted((scene / "images").glob("*.png")):
+        (folder / png.name).write_bytes(png.read_bytes())
+    (folder / "zz_broken.jpg").write_bytes(b"\xff\xd8\xff\xe0 cut off")
+    return folder
+
+
+def align(est: list, true: list) -> tuple[float, float, float]:
+    """(median and largest rotation error in degrees, largest centre error as a fraction of
+    the rig's size) after the best similarity from ``est`` to ``true`` (lists of Cameras)."""
+    Re = [c.R.double().numpy() for c in est]
+    Rt = [c.R.double().numpy() for c in true]
+    U, _, Vt = np.linalg.svd(sum(b.T @ a for a, b in zip(Re, Rt, strict=True)))
+    G = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt  # x_true = s G x_est + t
+    ce = np.stack([c.center.double().numpy() for c in est])
+    ct = np.stack([c.center.double().numpy() for c in true])
+    xe, xt = (ce - ce.mean(0)) @ G.T, ct - ct.mean(0)
+    s = float((xe * xt).sum() / (xe * xe).sum())
+    centre_err = np.linalg.norm(s * xe - xt, axis=1).max() / np.ptp(ct, axis=0).max()
+
+    def angle(A, B) -> float:
+        return float(np.degrees(np.arccos(np.clip((np.trace(A.T @ B) - 1) / 2, -1, 1))))
+
+    rot = [angle(a @ G.T, b) for a, b in zip(Re, Rt, strict=True)]
+    return float(np.median(rot)), float(max(rot)), float(centre_err)
+
+
+@pytest.fixture(scope="session")
+def arc_scene(tmp_path_factory) -> Path:
+    return render_arc(tmp_path_factory.mktemp("pose_scene"), views=16, size=384, samples=8)
+
+
+@pytest.fixture(scope="module")
+def posed(arc_scene, tmp_path_factory):
+    root = tmp_path_factory.mktemp("poses")
+    photos = photos_of(arc_scene, root / "photos")
+    calls: list[tuple[str, int, int]] = []
+    result = estimate_poses(photos, root / "out", progress=lambda *a: calls.append(a))
+    return result, calls, photos
+
+
+def _truth(scene: Path) -> dict:
+    return {
+        Path(f.file_path).name: f.camera for f in read_transforms(scene / "transforms.json").frames
+    }
+
+
+def test_poses_match_the_rendered_cameras(arc_scene, posed):
+    result, calls, _ = posed
+    truth = _truth(arc_scene)
+    assert len(result.names) >= 14, result.unregistered  # of 16; the broken file is no photo
+    assert result.skipped and result.skipped[0][0].endswith("zz_broken.jpg")
+    median_rot, max_rot, centre = align(result.cameras, [truth[n] for n in result.names])
+    assert median_rot <= 1.0 and max_rot <= 2.0, (median_rot, max_rot)
+    assert centre <= 0.02
+    assert result.reprojection_error < 1.5
+    assert 0 < result.near < result.far
+    phases = list(dict.fromkeys(c[0] for c in calls))
+    assert phases == ["prepare", "extract", "match", "map", "write"]
+    assert all(0 <= d <= t for _, d, t in calls) and calls[-1] == ("write", 1, 1)
+    # the upright frame: cameras level on average, 4 units from the points' median
+    ups = np.stack([-c.R.double().numpy()[1] for c in result.cameras]).mean(0)
+    assert ups[2] / np.linalg.norm(ups) > 0.999
+    centres = np.stack([c.center.double().numpy() for c in result.cameras])
+    dist = np.linalg.norm(centres - np.median(result.points, axis=0), axis=1)
+    assert np.median(dist) == pytest.approx(4.0, rel=1e-3)
+
+
+def test_both_formats_give_the_same_cameras(posed):
+    result, _, _ = posed
+    folder = result.folder
+    a = load_posed_set(folder / "transforms.json")
+    b = load_posed_set(folder / "sparse" / "0")
+    assert a.names == b.names == [Path(n).stem for n in sorted(result.names)]
+    for va, vb in zip(a.views, b.views, strict=True):
+        assert va.image == vb.image and va.image.is_file()
+        assert np.allclose(va.camera.K.numpy(), vb.camera.K.numpy())
+        assert np.allclose(va.camera.world_to_cam.numpy(), vb.camera.world_to_cam.numpy())
+        assert va.distortion == vb.distortion
+    again = load_pose_result(folder)
+    assert again.names == result.names and again.near == result.near
+    assert a.bounds[None] == (result.near, result.far)
+
+
+def test_cancel_leaves_nothing_and_the_rerun_resumes(posed, tmp_path):
+    """Cancel in the map phase: nothing in out, the work (copies, features, matches) kept; the
+    re-run reuses the database: no photo is extracted again."""
+    _, _, photos = posed
+    out = tmp_path / "out"
+    stamps: dict[str, float] = {}
+
+    def note(phase, done, total):
+        stamps.setdefault(phase, time.perf_counter())
+
+    with pytest.raises(PoseCancelled):
+        estimate_poses(photos, out, progress=note, cancel=lambda: "map" in stamps)
+    assert not out.exists()
+    db = work_folder(out) / "database.db"
+    first_extract = stamps["match"] - stamps["extract"]
+    database = pycolmap.Database.open(str(db))
+    images_before = database.num_images()
+    database.close()
+    assert images_before == 16
+
+    result = estimate_poses(photos, out)
+    assert result.timings["extract"] < 0.5 * first_extract
+    database = pycolmap.Database.open(str(out / "database.db"))
+    assert database.num_images() == images_before
+    database.close()
+    assert not work_folder(out).exists()
+
+
+@pytest.mark.slow
+def test_poses_of_a_longer_sharper_arc(tmp_path):
+    scene = render_arc(tmp_path / "scene", views=20, size=512, samples=16)
+    result = estimate_poses(scene / "images", tmp_path / "out")
+    truth = _truth(scene)
+    assert len(result.names) == 20, result.unregistered
+    median_rot, max_rot, centre = align(result.cameras, [truth[n] for n in result.names])
+    assert max_rot <= 1.0 and centre <= 0.02, (median_rot, max_rot, centre)
