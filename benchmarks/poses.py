@@ -33,7 +33,7 @@ import numpy as np
 import pycolmap
 
 from prosplat.pipeline.posed_views import load_posed_set
-from prosplat.poses import PoseError, PoseOptions, estimate_poses, list_photos
+from prosplat.poses import PoseError, PoseOptions, estimate_poses, list_photos, quiet_colmap
 
 ROOT = Path(__file__).resolve().parents[1]
 PHASES = ("prepare", "extract", "match", "map", "write")
@@ -215,6 +215,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
                     "the transforms.json beside --photos, if any")  # fmt: skip
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "poses_bench")
     args = ap.parse_args(argv)
+    quiet_colmap()  # the table says it all; COLMAP's line per step would bury it
     photos = list_photos(args.photos)
     if len(photos) < 2:
         raise SystemExit(f"{args.photos}: fewer than 2 photos")

@@ -25,19 +25,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import signal
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from prosplat.cli.poses import _Bars as PhaseBars  # prosplat poses' own bars, one per phase
+from prosplat.cli.poses import pose_with_bars
 from prosplat.pipeline.posed_views import holds_poses
 from prosplat.poses import (
-    PoseCancelled,
     PoseOptions,
     PoseResult,
-    estimate_poses,
     is_video,
     list_photos,
     load_pose_result,
@@ -161,32 +157,6 @@ def _reusable(folder: Path, source: Path, options: PoseOptions) -> bool:
     ) == dataclasses.asdict(options)
 
 
-def _estimate(source: Path, folder: Path, options: PoseOptions) -> PoseResult:
-    """:func:`~prosplat.poses.estimate_poses` with a bar per phase, and Ctrl-C as its cancel
-    (as ``prosplat poses`` does: pycolmap stops at its next check, the work folder stays for
-    the re-run, and a second Ctrl-C interrupts at once)."""
-    stop = threading.Event()
-
-    def on_interrupt(signum, frame) -> None:
-        if stop.is_set():
-            raise KeyboardInterrupt
-        stop.set()
-
-    main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, on_interrupt) if main else None
-    bars = PhaseBars()
-    try:
-        return estimate_poses(
-            source, folder, options, progress=bars, cancel=stop.is_set, overwrite=True
-        )
-    except PoseCancelled:
-        raise KeyboardInterrupt from None  # main() says "interrupted" and exits 130
-    finally:
-        bars.close()
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-
-
 @dataclass
 class PhotoPoses:
     """The pose step as ``reconstruct`` used it: where from, its result, reused or run."""
@@ -224,7 +194,7 @@ def pose_step(args: argparse.Namespace, out: Path, kind: str) -> PhotoPoses:
         print(
             f"posing the {'frames of' if kind == 'video' else 'photos in'} {source} into {folder}"
         )
-        result, reused = _estimate(source, folder, options), False
+        result, reused = pose_with_bars(source, folder, options, overwrite=True), False
     args.photos = source  # named in the report's options
     args.input = folder
     return PhotoPoses(source, kind, result, reused, time.perf_counter() - t0)

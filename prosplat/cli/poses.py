@@ -23,7 +23,14 @@ from pathlib import Path
 from tqdm import tqdm
 
 from prosplat.cli.options import int_between
-from prosplat.poses import PoseCancelled, PoseError, PoseOptions, estimate_poses, quiet_colmap
+from prosplat.poses import (
+    PoseCancelled,
+    PoseError,
+    PoseOptions,
+    PoseResult,
+    estimate_poses,
+    quiet_colmap,
+)
 
 _PHASE_TEXT = {
     "frames": ("video frames", "frame"),
@@ -59,6 +66,38 @@ class _Bars:
         self.bar = self.phase = None
 
 
+def pose_with_bars(
+    source: Path, out: Path, options: PoseOptions, overwrite: bool = False
+) -> PoseResult:
+    """:func:`~prosplat.poses.estimate_poses` as the command line runs it (``prosplat poses``
+    and ``prosplat reconstruct PHOTOS``): a bar per phase, COLMAP's own log kept to errors,
+    and the first Ctrl-C as a clean cancel (pycolmap stops at its next check and the work
+    folder stays for the re-run; :class:`KeyboardInterrupt` then goes up, so ``main`` says
+    "interrupted" and exits 130). A second Ctrl-C interrupts at once."""
+    stop = threading.Event()
+    previous = None
+
+    def on_interrupt(signum, frame) -> None:
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, on_interrupt)
+    bars = _Bars()
+    quiet_colmap()
+    try:
+        return estimate_poses(
+            source, out, options, progress=bars, cancel=stop.is_set, overwrite=overwrite
+        )
+    except PoseCancelled:
+        raise KeyboardInterrupt from None
+    finally:
+        bars.close()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
 def run(args: argparse.Namespace) -> int:
     options = PoseOptions(
         feature_size=args.feature_size,
@@ -69,34 +108,11 @@ def run(args: argparse.Namespace) -> int:
         single_camera={"auto": None, "single": True, "per-photo": False}[args.camera],
         seed=args.seed,
     )
-    stop = threading.Event()
-    previous = None
-
-    def on_interrupt(signum, frame) -> None:  # first Ctrl-C: stop pycolmap cleanly
-        if stop.is_set():
-            raise KeyboardInterrupt
-        stop.set()
-
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, on_interrupt)
-    bars = _Bars()
-    quiet_colmap()
     try:
-        result = estimate_poses(
-            args.source, args.out, options, progress=bars, cancel=stop.is_set,
-            overwrite=args.overwrite,
-        )  # fmt: skip
-    except PoseCancelled:
-        bars.close()
-        raise KeyboardInterrupt from None  # main() says "interrupted" and exits 130
+        result = pose_with_bars(args.source, args.out, options, args.overwrite)
     except (PoseError, FileExistsError) as e:
-        bars.close()
         print(f"prosplat poses: {e}", file=sys.stderr)
         return 2
-    finally:
-        bars.close()
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
     n = len(result.names) + len(result.unregistered)
     print(f"registered {len(result.names)} of {n} photos into {result.folder}")
     if result.unregistered:

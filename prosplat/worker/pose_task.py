@@ -111,6 +111,7 @@ def task_poses(params: dict, progress: Progress) -> dict:
     overwrite = bool(params.get("overwrite", False))
     out = fresh_folder(Path(params["out"]), overwrite)
     progress(0.0, "starting the pose step")
+    poses.quiet_colmap()  # the job's progress says it; COLMAP's line per step fills the log
     report = PhaseProgress(progress, poses.is_video(source))
     try:
         result = poses.estimate_poses(source, out, options, progress=report,

@@ -21,6 +21,7 @@ from posed_data import write_colmap_project
 from synthetic_scenes import write_synthetic_scene
 
 from prosplat.cli import build_parser, photo_input
+from prosplat.cli import poses as poses_cli
 from prosplat.core.image_io import write_image
 from prosplat.poses import PoseError, PoseResult, load_pose_result
 
@@ -101,7 +102,7 @@ def write_fake_record(out: Path, source: Path, options, result: PoseResult) -> N
 @pytest.fixture
 def fake(monkeypatch) -> FakePoses:
     f = FakePoses()
-    monkeypatch.setattr(photo_input, "estimate_poses", f)
+    monkeypatch.setattr(poses_cli, "estimate_poses", f)
     return f
 
 
@@ -154,7 +155,7 @@ def test_other_poses_in_out_are_not_replaced_without_overwrite(photos, fake, tmp
 
 def test_pose_error_exits_2_with_one_line_and_writes_nothing(photos, monkeypatch, tmp_path, capsys):
     message = "only 1 of 6 photos could be matched (registered): take more photos with overlap"
-    monkeypatch.setattr(photo_input, "estimate_poses", FakePoses(error=message))
+    monkeypatch.setattr(poses_cli, "estimate_poses", FakePoses(error=message))
     out = tmp_path / "out"
     capsys.readouterr()
     assert cli("reconstruct", photos, "--out", out, "--size", "32") == 2

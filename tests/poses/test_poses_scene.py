@@ -11,6 +11,7 @@ with centres that are right to 1 %), scale and shift then by least squares on th
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -21,8 +22,9 @@ import pycolmap
 import pytest
 
 from prosplat.convert.nerfstudio import read_transforms
+from prosplat.core.image_io import read_image
 from prosplat.pipeline.posed_views import load_posed_set
-from prosplat.poses import PoseCancelled, estimate_poses, load_pose_result, work_folder
+from prosplat.poses import PoseCancelled, PoseOptions, estimate_poses, load_pose_result, work_folder
 
 pytestmark = pytest.mark.blender
 pytest.importorskip("bpy")
@@ -163,3 +165,36 @@ def test_poses_of_a_longer_sharper_arc(tmp_path):
     assert len(result.names) == 20, result.unregistered
     median_rot, max_rot, centre = align(result.cameras, [truth[n] for n in result.names])
     assert max_rot <= 1.0 and centre <= 0.02, (median_rot, max_rot, centre)
+
+
+def test_a_video_of_the_arc_is_posed_with_sequential_matching(arc_scene, tmp_path):
+    """The arc's 16 renders as a 4-second clip (each held for 2 frames at 8 fps, H.264 at
+    high quality): the frame step keeps one per interval and the photos are matched in time
+    order, as a phone clip walked around a subject is."""
+    av = pytest.importorskip("av")
+    clip = tmp_path / "walk.mp4"
+    pngs = sorted((arc_scene / "images").glob("*.png"))
+    first = read_image(pngs[0])
+    with av.open(str(clip), "w") as container:
+        stream = container.add_stream("libx264", rate=8, options={"crf": "12"})
+        stream.width, stream.height = first.shape[2], first.shape[1]
+        stream.pix_fmt = "yuv420p"
+        for png in pngs:
+            rgb = (read_image(png).permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+            for _ in range(2):
+                container.mux(stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+        container.mux(stream.encode())
+    calls: list[tuple[str, int, int]] = []
+    options = PoseOptions(max_frames=16)
+    result = estimate_poses(clip, tmp_path / "out", options, progress=lambda *a: calls.append(a))
+    assert list(dict.fromkeys(c[0] for c in calls))[:2] == ["frames", "prepare"]
+    report = json.loads((result.folder / "poses.json").read_text())
+    assert report["matching"] == "sequential"
+    assert len(result.names) + len(result.unregistered) == 16
+    assert len(result.names) >= 14, result.unregistered
+    # the frames are the renders in order: compare with the true cameras frame by frame
+    truth = _truth(arc_scene)
+    true_cams = [truth[p.name] for p in pngs]
+    index = [int(Path(n).stem.split("_")[1]) for n in result.names]
+    median_rot, max_rot, centre = align(result.cameras, [true_cams[i] for i in index])
+    assert median_rot <= 1.0 and max_rot <= 2.0 and centre <= 0.02, (median_rot, max_rot, centre)
