@@ -451,9 +451,9 @@ def _map(
     registered = [0]
     total = len(names)
 
-    def first_pair() -> None:
-        registered[0] = 2
-        watch.report("map", 2, total)
+    def first_pair() -> None:  # a second model (a failed first one) does not move the bar back
+        registered[0] = max(registered[0], 2)
+        watch.report("map", registered[0], total)
         watch.cancelled()
 
     def next_image() -> None:
