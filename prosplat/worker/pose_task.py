@@ -113,15 +113,25 @@ def task_poses(params: dict, progress: Progress) -> dict:
     progress(0.0, "starting the pose step")
     poses.quiet_colmap()  # the job's progress says it; COLMAP's line per step fills the log
     report = PhaseProgress(progress, poses.is_video(source))
+    made = not out.exists()  # a pose folder this job makes is removed again if the job ends early
     try:
-        result = poses.estimate_poses(source, out, options, progress=report,
-                                      cancel=progress.cancelled, overwrite=overwrite)  # fmt: skip
-    except PoseError as e:
-        if progress.cancelled():  # PoseCancelled, or a failure while stopping: a cancel
-            raise Cancelled(f"cancelled: {e}") from None
+        try:
+            result = poses.estimate_poses(source, out, options, progress=report,
+                                          cancel=progress.cancelled, overwrite=overwrite)  # fmt: skip
+        except PoseError as e:
+            if progress.cancelled():  # PoseCancelled, or a failure while stopping: a cancel
+                raise Cancelled(f"cancelled: {e}") from None
+            raise
+        progress(0.97, "reading the cameras")  # a cancel after the last phase still counts
+        frames = undistorted_frames(result, progress)
+    except BaseException:
+        # Import Photos' failure or Esc leaves nothing beside the photos: not the pose step's
+        # work folder either (the command line keeps it, to resume; an artist who cancels
+        # has usually picked the wrong folder, and it can hold hundreds of MB of copies)
+        shutil.rmtree(poses.work_folder(out), ignore_errors=True)
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
         raise
-    progress(0.97, "reading the cameras")  # a cancel that came after the last phase still counts
-    frames = undistorted_frames(result, progress)
     return {"source": str(source), **pose_result_dict(result, progress, frames)}
 
 

@@ -159,7 +159,7 @@ def test_real_pose_step_on_photos_with_no_overlap_fails_in_one_line(tmp_path: Pa
     status = json.loads(paths_for(job)["status"].read_text())
     assert status["kind"] == "PoseError" and "\n" not in status["error"]
     assert "of 3 photos could be matched" in status["error"], status["error"]
-    assert not (tmp_path / "poses").exists()
+    assert sorted(p.name for p in tmp_path.iterdir() if "poses" in p.name) == []  # nor work
 
 
 def test_distorted_photos_come_back_undistorted_with_pinhole_cameras(monkeypatch, tmp_path):
@@ -181,3 +181,16 @@ def test_distorted_photos_come_back_undistorted_with_pinhole_cameras(monkeypatch
         want = undistorted_camera(cam, Distortion("opencv", k1=-0.15))
         assert frame["blender"] == camera_to_blender_dict(want)
         assert read_image(frame["image"]).shape == (3, cam.height, cam.width)
+
+
+def test_real_pose_step_cancelled_leaves_nothing_beside_the_photos(tmp_path: Path) -> None:
+    """Esc during the real pose step: no pose folder and no work folder (the command line
+    keeps its work folder to resume; Import Photos leaves nothing)."""
+    write_photos(tmp_path / "photos", 3, seed=5)
+    log: list = []
+    params = {"source": str(tmp_path / "photos"), "out": str(tmp_path / "poses"),
+              "feature_size": 256}  # fmt: skip
+    with pytest.raises(Cancelled):
+        run_task("poses", params, _progress(log, cancel_at="finding features"))
+    assert any(m.startswith("finding features") for _, m in log)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos"]
