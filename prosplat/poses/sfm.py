@@ -16,9 +16,10 @@ that each report ``(phase, done, total)``:
 * ``write``: the model is made upright (:mod:`.frame`) and written as a pose folder
   (``images/``, ``sparse/0``, ``transforms.json``, ``poses.json``, ``database.db``).
 
-pycolmap reports no counts while it extracts or matches, so those phases run in batches
-(about :data:`BATCHES` calls: photos for extraction, pairs from a list for matching) and the
-bar moves after each; the mapper's per-image callback counts registered photos. Nothing reads
+pycolmap reports no counts while it extracts or matches: extraction runs in batches of
+photos (about :data:`BATCHES` calls, the bar moving after each); matching runs a first call
+of :data:`RATE_PAIRS` pairs, timed, and the rest in one call while the bar moves at that
+rate. The mapper's per-image callback counts registered photos. Nothing reads
 the database while pycolmap writes it: a second SQLite in the process (Python's ``sqlite3``)
 shares the process's POSIX locks with pycolmap's own, and reading through it crashed a
 30-photo run (SIGBUS in COLMAP's WAL checkpoint). A helper thread polls ``cancel`` and trips
@@ -75,8 +76,8 @@ DATABASE = "database.db"
 MANIFEST = "prepare.json"  # in the work folder: the copies made so far and their sources
 SEQUENTIAL_ABOVE = 60  # "auto" matching: sequential for more photos than this
 SEQUENTIAL_OVERLAP = 10  # sequential matching: each photo with its next ten (and 2^k-th)
-BATCHES = 20  # extraction and matching run in about this many pycolmap calls (the bar's steps)
-MIN_PAIRS_PER_BATCH = 20  # fewer pairs per call would spend more time opening the database
+BATCHES = 20  # extraction runs in about this many pycolmap calls (the bar's steps)
+RATE_PAIRS = 100  # matching: pairs of the first, timed call; the rest go in one more call
 POLL_SECONDS = 0.25
 CAMERA_MODEL = "SIMPLE_RADIAL"  # one focal, centred principal point, one radial term
 FALLBACK_NEAR_FAR = (0.1, 20.0)  # a model with too few points for a depth range (rare)
@@ -152,6 +153,7 @@ class _Watch:
         self._cancel = cancel
         self._lock = threading.Lock()
         self._last: tuple[str, int, int] | None = None
+        self._pace: tuple[str, int, int, float, float] | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="prosplat-poses-watch", daemon=True)
 
@@ -189,11 +191,27 @@ class _Watch:
             self._last = item
             self._progress(*item)
 
+    @contextmanager
+    def paced(self, phase: str, done: int, total: int, seconds_per_step: float) -> Iterator[None]:
+        """Around one long pycolmap call that reports nothing: the bar moves from ``done`` at
+        the measured rate, short of ``total`` until the call returns (an estimate, never a
+        count the database was read for: see the module docstring)."""
+        self._pace = (phase, done, total, seconds_per_step, time.perf_counter())
+        try:
+            yield
+        finally:
+            self._pace = None
+
     def _run(self) -> None:
         while not self._stop.wait(POLL_SECONDS):
             try:
                 self.cancelled()
-            except Exception:  # a cancel callback's failure must not kill the watch
+                pace = self._pace
+                if pace is not None:
+                    phase, done, total, rate, start = pace
+                    guess = done + int((time.perf_counter() - start) / rate)
+                    self.report(phase, min(guess, total - 1), total)
+            except Exception:  # a callback's failure must not kill the watch
                 pass
 
 
@@ -412,24 +430,35 @@ def _pairs(names: list[str], sequential: bool, overlap: int = SEQUENTIAL_OVERLAP
 
 
 def _match(db: Path, work: Path, names: list[str], sequential: bool, watch: _Watch) -> None:
-    """Match and verify the pairs (:func:`_pairs`), a batch of pairs per call; pairs already
-    in the database (a resumed run) are skipped by COLMAP."""
+    """Match and verify the pairs (:func:`_pairs`); pairs already in the database (a resumed
+    run) are skipped by COLMAP.
+
+    In two pycolmap calls: the first :data:`RATE_PAIRS` pairs, timed, then the rest in one
+    call while the bar moves at the measured rate. Why not batches with a count after each:
+    every call costs set-up, and ten calls made matching 1.2x slower (BENCHMARKS.md, "The
+    pose step"); a count read from the database while COLMAP writes it is not safe.
+    """
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = -1
     pairs = _pairs(names, sequential)
     listing = work / "pairs.txt"
-    done = 0
+    done, rate = 0, float("inf")  # seconds per pair: unknown until the first call returns
     watch.report("match", 0, len(pairs))
-    for batch in _batches(pairs, BATCHES, MIN_PAIRS_PER_BATCH):
+    for batch in (pairs[:RATE_PAIRS], pairs[RATE_PAIRS:]):
+        if not batch:
+            continue
         watch.check()
         listing.write_text("".join(f"{a} {b}\n" for a, b in batch))
         pairing = pycolmap.ImportedPairingOptions()
         pairing.match_list_path = str(listing)
-        with watch.stoppable():
+        pairing.block_size = len(batch)
+        clock = time.perf_counter()
+        with watch.stoppable(), watch.paced("match", done, len(pairs), rate):
             pycolmap.match_image_pairs(
                 str(db), matching, pairing, device=pycolmap.Device.cpu,
                 cancellation_token=watch.token,
             )  # fmt: skip
+        rate = max((time.perf_counter() - clock) / len(batch), 1e-6)
         done += len(batch)
         watch.report("match", done, len(pairs))
     listing.unlink(missing_ok=True)
