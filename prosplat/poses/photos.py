@@ -12,6 +12,7 @@ A file that cannot be read is named with the reason and left out, never fatal on
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 from dataclasses import dataclass
@@ -140,24 +141,11 @@ def write_working_copy(src: Path, dst: Path, image_size: int) -> Photo:
         x = np.clip(pixels, 0.0, 1.0)
         pixels = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     out = np.clip(np.round(pixels * 255.0), 0, 255).astype(np.uint8)
-    out_spec = oiio.ImageSpec(w, h, 3, oiio.UINT8)
-    for name, value in exif.items():
-        out_spec.attribute(name, value)
-    if dst.suffix.lower() in _JPEG:
-        out_spec.attribute("Compression", f"jpeg:{JPEG_QUALITY}")
     dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.tmp{dst.suffix}")
-    image = oiio.ImageOutput.create(str(tmp))
-    if image is None or not image.open(str(tmp), out_spec):
-        raise ValueError(f"cannot write the working copy {dst}: {oiio.geterror()}")
-    try:
-        ok = image.write_image(out)
-    finally:
-        image.close()
-    if not ok:
-        tmp.unlink(missing_ok=True)
-        raise ValueError(f"cannot write the working copy {dst}: {oiio.geterror()}")
-    tmp.replace(dst)  # a copy is there whole or not at all (a resumed run trusts it)
+    try:  # a copy is there whole or not at all (a resumed run trusts it)
+        write_rgb8(dst, out, exif)
+    except OSError as e:
+        raise ValueError(f"cannot write the working copy: {e}") from e
     return Photo(src, dst.name, w, h, _key(w, h, exif))
 
 
@@ -167,3 +155,29 @@ def _key(w: int, h: int, exif: dict) -> tuple:
         round(float(focal), 3) if isinstance(focal, (int, float)) and math.isfinite(focal) else None
     )
     return (w, h, exif.get("Make"), exif.get("Model"), focal)
+
+
+def write_rgb8(path: Path, rgb: np.ndarray, attributes: dict | None = None) -> None:
+    """Write ``rgb`` [H,W,3] uint8 to ``path`` (JPEG at quality 95 by its suffix), through a
+    hidden sibling and a rename, so that no half-written image is ever seen (working copies
+    and video frames are trusted by a resumed run). Raises OSError naming ``path``."""
+    height, width = rgb.shape[:2]
+    spec = oiio.ImageSpec(width, height, 3, oiio.UINT8)
+    for name, value in (attributes or {}).items():
+        spec.attribute(name, value)
+    if path.suffix.lower() in _JPEG:
+        spec.attribute("Compression", f"jpeg:{JPEG_QUALITY}")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise OSError(f"cannot write {path}: {oiio.geterror()}")
+        try:
+            ok = out.write_image(np.ascontiguousarray(rgb))
+        finally:
+            out.close()
+        if not ok:
+            raise OSError(f"cannot write {path}: {oiio.geterror()}")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

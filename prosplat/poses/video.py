@@ -18,13 +18,12 @@ from pathlib import Path
 
 import av
 import numpy as np
-import OpenImageIO as oiio
 
 from prosplat.poses.errors import PoseCancelled, PoseError
+from prosplat.poses.photos import write_rgb8
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm"})
 SCORE_SIZE = 480  # longest side (px) of the grey copy the sharpness is measured on
-JPEG_QUALITY = 95
 FRAME_PATTERN = "frame_{:04d}.jpg"
 
 
@@ -178,26 +177,8 @@ def _upright(frame: av.VideoFrame, rgb: np.ndarray) -> np.ndarray:
 
 
 def _write(frame: av.VideoFrame, path: Path) -> Path:
-    """Write a frame upright as an sRGB JPEG (quality 95), through a hidden sibling and a
-    rename so that no half-written frame is ever seen."""
-    rgb = np.ascontiguousarray(_upright(frame, frame.to_ndarray(format="rgb24")))
-    height, width = rgb.shape[:2]
-    spec = oiio.ImageSpec(width, height, 3, oiio.UINT8)
-    spec.attribute("compression", f"jpeg:{JPEG_QUALITY}")
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    try:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None or not out.open(str(tmp), spec):
-            raise OSError(f"cannot write {path}: {oiio.geterror()}")
-        try:
-            ok = out.write_image(rgb)
-        finally:
-            out.close()
-        if not ok:
-            raise OSError(f"cannot write {path}: {oiio.geterror()}")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    """Write a frame upright as an sRGB JPEG (quality 95), whole or not at all."""
+    write_rgb8(path, _upright(frame, frame.to_ndarray(format="rgb24")))
     return path
 
 

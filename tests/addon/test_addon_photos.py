@@ -168,3 +168,13 @@ def test_the_external_worker_reports_the_one_line(blank, tmp_path: Path) -> None
     assert (
         str(e.value) == f"{tmp_path / 'gone'} does not exist; choose a folder of photos or a video"
     )
+
+
+def test_the_operator_defaults_are_the_pose_steps(blank) -> None:
+    """The add-on copies PoseOptions' defaults (Blender's own Python may lack torch): they
+    must not drift apart."""
+    from prosplat.poses import PoseOptions
+
+    props = bpy.ops.prosplat.import_photos.get_rna_type().properties
+    assert props["feature_size"].default == PoseOptions().feature_size
+    assert props["max_frames"].default == PoseOptions().max_frames
