@@ -23,8 +23,6 @@ so ``poses/`` stays; and ``OUT`` holding nothing but the poses counts as empty
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +35,7 @@ from prosplat.poses import (
     is_video,
     list_photos,
     load_pose_result,
+    reusable,
 )
 
 __all__ = [
@@ -126,37 +125,6 @@ def _options(args: argparse.Namespace) -> PoseOptions:
     return PoseOptions(**{k: v for k, v in given.items() if v is not None})
 
 
-def _files(source: Path) -> list[Path]:
-    return [source] if source.is_file() else list_photos(source)
-
-
-def source_record(source: Path) -> list[dict]:
-    """What a pose step from ``source`` is made from, as ``poses.json``'s ``source_files``
-    records it: each photo (or the video) by resolved path, size and modification time."""
-    out = []
-    for f in _files(source):
-        st = f.stat()
-        out.append({"path": str(f.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns})
-    return out
-
-
-def _recorded(folder: Path) -> dict | None:
-    try:
-        return json.loads((folder / "poses.json").read_text())
-    except (OSError, ValueError):
-        return None
-
-
-def _reusable(folder: Path, source: Path, options: PoseOptions) -> bool:
-    """True when ``folder``'s poses.json was made from these very files with these options."""
-    rec = _recorded(folder)
-    if rec is None or not (folder / "transforms.json").is_file():
-        return False
-    return rec.get("source_files") == source_record(source) and rec.get(
-        "options"
-    ) == dataclasses.asdict(options)
-
-
 @dataclass
 class PhotoPoses:
     """The pose step as ``reconstruct`` used it: where from, its result, reused or run."""
@@ -179,7 +147,7 @@ def pose_step(args: argparse.Namespace, out: Path, kind: str) -> PhotoPoses:
     folder = out / POSES_DIR
     options = _options(args)
     t0 = time.perf_counter()
-    if _reusable(folder, source, options):
+    if reusable(folder, source, options):
         result, reused = load_pose_result(folder), True
         print(
             f"reusing the poses in {folder} ({len(result.names)} registered photos; same "

@@ -13,6 +13,8 @@ from prosplat.poses.sfm import (
     estimate_poses,
     load_pose_result,
     quiet_colmap,
+    reusable,
+    source_record,
     work_folder,
 )
 from prosplat.poses.video import extract_frames, is_video
@@ -28,5 +30,7 @@ __all__ = [
     "list_photos",
     "load_pose_result",
     "quiet_colmap",
+    "reusable",
+    "source_record",
     "work_folder",
 ]

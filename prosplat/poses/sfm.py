@@ -67,6 +67,8 @@ __all__ = [
     "estimate_poses",
     "load_pose_result",
     "quiet_colmap",
+    "reusable",
+    "source_record",
     "work_folder",
 ]
 
@@ -543,6 +545,30 @@ def _result_from_folder(folder: Path, report: dict) -> PoseResult:
         timings={k: float(v) for k, v in report["timings"].items()},
         distortions=[by_name[n].distortion for n in names],
         sources={p["name"]: p["path"] for p in report.get("photos", [])},
+    )
+
+
+def source_record(source: str | Path) -> list[dict]:
+    """What a pose step from ``source`` (a folder of photos or a video) is made from, as
+    ``poses.json``'s ``source_files`` records it: each file by resolved path, size and
+    modification time."""
+    source = Path(source)
+    return [_stat(f) for f in ([source] if source.is_file() else list_photos(source))]
+
+
+def reusable(folder: str | Path, source: str | Path, options: PoseOptions) -> bool:
+    """True when the pose folder ``folder`` was made from these very files
+    (:func:`source_record`) with these options, so a re-run (``prosplat reconstruct
+    PHOTOS``, a second *Import Photos* of one folder) can take it as it is."""
+    folder = Path(folder)
+    try:
+        record = json.loads((folder / POSES_JSON).read_text())
+    except (OSError, ValueError):
+        return False
+    return (
+        (folder / "transforms.json").is_file()
+        and record.get("options") == asdict(options)
+        and record.get("source_files") == source_record(source)
     )
 
 

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from prosplat import poses
-from prosplat.convert.distortion import undistort_view
+from prosplat.convert.distortion import undistort_view, undistorted_camera
 from prosplat.convert.posed import camera_to_blender_dict, unique_names
 from prosplat.core.camera import Camera
 from prosplat.core.image_io import read_image, write_image
@@ -109,6 +109,14 @@ def task_poses(params: dict, progress: Progress) -> dict:
         raise FileNotFoundError(f"{source} does not exist; choose a folder of photos or a video")
     options = poses.PoseOptions(**{k: params[k] for k in OPTION_KEYS if params.get(k) is not None})
     overwrite = bool(params.get("overwrite", False))
+    if not overwrite and poses.reusable(params["out"], source, options):
+        # the same photos, unchanged, with the same options: a second import of one folder
+        # takes the finished poses (and their undistorted copies) instead of posing again
+        progress(0.0, "reusing the poses of an earlier import")
+        result = poses.load_pose_result(params["out"])
+        frames = undistorted_frames(result, progress)
+        return {"source": str(source), "reused": True,
+                **pose_result_dict(result, progress, frames)}  # fmt: skip
     out = fresh_folder(Path(params["out"]), overwrite)
     progress(0.0, "starting the pose step")
     poses.quiet_colmap()  # the job's progress says it; COLMAP's line per step fills the log
@@ -132,7 +140,7 @@ def task_poses(params: dict, progress: Progress) -> dict:
         if made:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    return {"source": str(source), **pose_result_dict(result, progress, frames)}
+    return {"source": str(source), "reused": False, **pose_result_dict(result, progress, frames)}
 
 
 def undistorted_frames(result, progress: Progress) -> list[tuple[Path, Camera]] | None:
@@ -150,6 +158,13 @@ def undistorted_frames(result, progress: Progress) -> list[tuple[Path, Camera]] 
     if all(d is None or d.is_identity for d in lenses):
         return None
     final, partial = folder / UNDISTORTED, folder / f".{UNDISTORTED}.partial"
+    if final.is_dir():  # an earlier import of these poses made them: the same copies again
+        return [
+            (folder / "images" / file, cam)
+            if lens is None or lens.is_identity
+            else (final / f"{Path(file).stem}.png", undistorted_camera(cam, lens))
+            for file, cam, lens in zip(result.names, result.cameras, lenses, strict=True)
+        ]
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir()
     out: list[tuple[Path, Camera]] = []

@@ -23,7 +23,7 @@ from synthetic_scenes import write_synthetic_scene
 from prosplat.cli import build_parser, photo_input
 from prosplat.cli import poses as poses_cli
 from prosplat.core.image_io import write_image
-from prosplat.poses import PoseError, PoseResult, load_pose_result
+from prosplat.poses import PoseError, PoseResult, load_pose_result, source_record
 
 PHOTOS = [f"{k:03d}.png" for k in range(6)]
 NOT_REGISTERED = ["005.png"]
@@ -86,7 +86,7 @@ def write_fake_record(out: Path, source: Path, options, result: PoseResult) -> N
     """poses.json as estimate_poses writes it (the fields the reuse check and the report read)."""
     record = {
         "source": str(source),
-        "source_files": photo_input.source_record(source),
+        "source_files": source_record(source),
         "options": dataclasses.asdict(options),
         "registered": result.names,
         "unregistered": result.unregistered,

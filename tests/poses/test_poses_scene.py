@@ -226,3 +226,15 @@ def test_the_worker_task_gives_blender_the_true_cameras(arc_scene, tmp_path):
     assert median_rot <= 1.0 and max_rot <= 2.5 and centre <= 0.02, (median_rot, max_rot, centre)
     fractions = [f for f, _ in log]
     assert fractions == sorted(fractions)
+    # a second import of the same, unchanged folder takes the finished poses as they are
+    again = run_task("poses", {"source": str(photos), "out": str(tmp_path / "poses")})
+    assert again["reused"] and not result["reused"]
+    assert again["folder"] == result["folder"] and again["frames"] == result["frames"]
+    (photos / "extra.png").write_bytes((photos / sorted(truth)[0]).read_bytes())
+    assert not run_task_reusable(photos, tmp_path / "poses")  # another photo: pose again
+
+
+def run_task_reusable(photos: Path, folder: Path) -> bool:
+    from prosplat.poses import PoseOptions, reusable
+
+    return reusable(folder, photos, PoseOptions())
