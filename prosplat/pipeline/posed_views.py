@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -31,6 +32,7 @@ from prosplat.core.camera import Camera
 from prosplat.core.image_io import composite, read_image_rgba
 from prosplat.data.rigs import farthest_point_sampling
 from prosplat.geometry.view_choice import first_of_pose
+from prosplat.poses.frame import FAR_MARGIN, NEAR_MARGIN, near_far
 
 __all__ = [
     "FAR_MARGIN",
@@ -48,12 +50,6 @@ __all__ = [
     "view_camera",
 ]
 
-#: near/far from sparse points: NEAR_MARGIN x the 2nd percentile of the input cameras' point
-#: depths, FAR_MARGIN x the 98th (SfM points sit on textured surfaces and have outliers)
-NEAR_MARGIN = 0.8
-FAR_MARGIN = 1.5
-POINT_PERCENTILES = (0.02, 0.98)
-MIN_POINTS = 8  # fewer points than this say nothing reliable about the depth range
 MAX_INPUTS = 6  # the generator's cross-view attention takes at most this many views
 _COLMAP_NAMES = ("cameras.txt", "images.txt", "cameras.bin", "images.bin")
 
@@ -467,28 +463,13 @@ def near_far_from_points(
 
     For each camera, its points are those it observes (``observed[i]``, indices into
     ``points``) or, without tracks, every point in front of it that projects into its image.
-    Fewer than :data:`MIN_POINTS` distinct points give None. The depths of all of them
-    together give ``near = NEAR_MARGIN · q02`` and ``far = FAR_MARGIN · q98`` (2nd and 98th
-    percentiles: SfM outliers do not stretch the range).
+    The depths of all of them together give ``near = NEAR_MARGIN · q02`` and ``far =
+    FAR_MARGIN · q98`` (2nd and 98th percentiles: SfM outliers do not stretch the range).
+    The rule is :func:`prosplat.poses.frame.near_far`, which the pose step writes its
+    ``transforms.json`` near/far with: one rule for both.
     """
-    depths = []
-    pts = points.double()
-    used = torch.zeros(len(pts), dtype=torch.bool)
-    for i, cam in enumerate(cameras):
-        c = cam.to(dtype=torch.float64)
-        if observed is not None and len(observed[i]) > 0:
-            idx = observed[i].long()
-        else:
-            uv, z = c.project(pts)
-            inside = (uv[:, 0] >= 0) & (uv[:, 0] <= c.width) & (uv[:, 1] >= 0)
-            idx = (inside & (uv[:, 1] <= c.height)).nonzero()[:, 0]
-        z = c.world_to_camera(pts[idx])[:, 2]
-        ok = torch.isfinite(z) & (z > 0)
-        used[idx[ok]] = True
-        depths.append(z[ok])
-    if int(used.sum()) < MIN_POINTS:
-        return None
-    z = torch.cat(depths)
-    lo, hi = torch.quantile(z, torch.tensor(POINT_PERCENTILES, dtype=torch.float64)).tolist()
-    near, far = NEAR_MARGIN * lo, FAR_MARGIN * hi
-    return (near, far) if 0 < near < far else None
+    w2c = np.stack([c.world_to_cam.double().numpy() for c in cameras])
+    intrinsics = np.stack([c.K.double().numpy() for c in cameras])
+    sizes = [(c.width, c.height) for c in cameras]
+    tracks = None if observed is None else [o.long().numpy() for o in observed]
+    return near_far(points.double().numpy(), w2c, tracks, sizes, intrinsics)

@@ -11,9 +11,8 @@ with cameras a few units away, so every pose folder is written in one normal for
 * **scale**: the median distance of the camera centres to that centre becomes
   :data:`TARGET_DISTANCE` units.
 
-:func:`near_far` gives the depth range from the points, the same rule as
-:func:`prosplat.pipeline.posed_views.near_far_from_points` (numpy here: this package sits
-below the pipeline and may not import it).
+:func:`near_far` gives the depth range from the points; it is the one rule:
+:func:`prosplat.pipeline.posed_views.near_far_from_points` calls it for posed sets.
 """
 
 from __future__ import annotations
@@ -31,7 +30,7 @@ __all__ = [
 ]
 
 TARGET_DISTANCE = 4.0
-# the depth-range rule of prosplat.pipeline.posed_views (kept equal by a test)
+# the depth range from sparse points (SfM points sit on textured surfaces and have outliers)
 NEAR_MARGIN = 0.8
 FAR_MARGIN = 1.5
 POINT_PERCENTILES = (2.0, 98.0)

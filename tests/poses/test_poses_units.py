@@ -16,11 +16,9 @@ from prosplat.cli import main as cli_main
 from prosplat.convert.distortion import Distortion
 from prosplat.convert.nerfstudio import Frame, read_transforms, write_transforms
 from prosplat.core.camera import Camera
-from prosplat.pipeline.posed_views import near_far_from_points
 from prosplat.poses import PoseCancelled, PoseError, estimate_poses, list_photos, work_folder
 from prosplat.poses.frame import (
     TARGET_DISTANCE,
-    near_far,
     transform_world_to_cam,
     upright_similarity,
 )
@@ -128,18 +126,6 @@ def test_upright_frame_puts_up_on_z_and_cameras_at_four_units():
     dist = np.linalg.norm(new_centres - np.median(new_pts, axis=0), axis=1)
     assert np.median(dist) == pytest.approx(TARGET_DISTANCE)
     assert np.allclose(np.median(new_pts, axis=0), 0, atol=1e-9)
-
-
-def test_near_far_is_the_pipeline_rule():
-    cams = [Camera.look_at((4 * math.cos(a), 4 * math.sin(a), 1.0), (0, 0, 0), (0, 0, 1), 80, 64,
-                           48) for a in (0.0, 0.5, 1.0)]  # fmt: skip
-    pts = np.random.default_rng(1).normal(scale=0.8, size=(300, 3))
-    observed = [np.arange(k, 300, 3) for k in range(3)]
-    ours = near_far(pts, np.stack([c.world_to_cam.numpy() for c in cams]), observed)
-    theirs = near_far_from_points(
-        torch.from_numpy(pts), cams, [torch.from_numpy(o) for o in observed]
-    )
-    assert ours == pytest.approx(theirs, rel=1e-9)
 
 
 def test_transforms_json_keeps_the_lens(tmp_path):
