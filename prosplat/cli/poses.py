@@ -24,6 +24,8 @@ from tqdm import tqdm
 
 from prosplat.cli.options import int_between
 from prosplat.poses import (
+    PHASE_LABELS,
+    PHASE_UNITS,
     PoseCancelled,
     PoseError,
     PoseOptions,
@@ -31,15 +33,6 @@ from prosplat.poses import (
     estimate_poses,
     quiet_colmap,
 )
-
-_PHASE_TEXT = {
-    "frames": ("video frames", "frame"),
-    "prepare": ("reading photos", "photo"),
-    "extract": ("finding features", "photo"),
-    "match": ("matching photos", "pair"),
-    "map": ("placing cameras", "photo"),
-    "write": ("writing", "step"),
-}
 
 
 class _Bars:
@@ -53,7 +46,7 @@ class _Bars:
     def __call__(self, phase: str, done: int, total: int) -> None:
         if phase != self.phase:
             self.close()
-            desc, unit = _PHASE_TEXT.get(phase, (phase, "step"))
+            desc, unit = PHASE_LABELS.get(phase, phase), PHASE_UNITS.get(phase, "photo")
             self.phase, self.bar = phase, tqdm(total=total, desc=desc, unit=unit)
         assert self.bar is not None
         if self.bar.total != total:

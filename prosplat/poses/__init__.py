@@ -8,6 +8,8 @@ posed-image reader of ProSplat opens. See :func:`estimate_poses`.
 from prosplat.poses.errors import PoseCancelled, PoseError
 from prosplat.poses.photos import list_photos
 from prosplat.poses.sfm import (
+    PHASE_LABELS,
+    PHASE_UNITS,
     PoseOptions,
     PoseResult,
     estimate_poses,
@@ -20,6 +22,8 @@ from prosplat.poses.sfm import (
 from prosplat.poses.video import extract_frames, is_video
 
 __all__ = [
+    "PHASE_LABELS",
+    "PHASE_UNITS",
     "PoseCancelled",
     "PoseError",
     "PoseOptions",

@@ -61,6 +61,8 @@ from prosplat.poses.video import extract_frames, is_video
 __all__ = [
     "DATABASE",
     "PHASES",
+    "PHASE_LABELS",
+    "PHASE_UNITS",
     "POSES_JSON",
     "PoseOptions",
     "PoseResult",
@@ -73,6 +75,17 @@ __all__ = [
 ]
 
 PHASES = ("frames", "prepare", "extract", "match", "map", "write")
+#: what each phase is called where people see it (the command line's bars, the add-on's
+#: status bar), and what it counts
+PHASE_LABELS = {
+    "frames": "extracting video frames",
+    "prepare": "reading photos",
+    "extract": "finding features",
+    "match": "matching photos",
+    "map": "solving camera poses",
+    "write": "writing the pose folder",
+}
+PHASE_UNITS = {"frames": "frame", "match": "pair", "write": "step"}  # else "photo"
 POSES_JSON = "poses.json"
 DATABASE = "database.db"
 MANIFEST = "prepare.json"  # in the work folder: the copies made so far and their sources

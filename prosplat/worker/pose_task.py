@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 from prosplat import poses
-from prosplat.convert.distortion import undistort_view, undistorted_camera
+from prosplat.convert.distortion import undistort_image, undistorted_camera
 from prosplat.convert.posed import camera_to_blender_dict, unique_names
 from prosplat.core.camera import Camera
 from prosplat.core.image_io import read_image, write_image
@@ -36,14 +36,6 @@ OPTION_KEYS = ("feature_size", "image_size", "max_features", "matching", "max_fr
 #: here (issue 69: extraction and mapping dominate; frames only for a video).
 PHASE_WEIGHTS = {"frames": 0.15, "prepare": 0.1, "extract": 0.3, "match": 0.2, "map": 0.35,
                  "write": 0.05}  # fmt: skip
-PHASE_LABELS = {
-    "frames": "extracting video frames",
-    "prepare": "reading photos",
-    "extract": "finding features",
-    "match": "matching photos",
-    "map": "solving camera poses",
-    "write": "writing the pose folder",
-}
 #: The pose folder's subfolder of undistorted copies (photos whose fitted lens bends).
 UNDISTORTED = "undistorted"
 #: Seconds a phase runs before its time-left estimate is shown (earlier ones jump about).
@@ -77,7 +69,7 @@ class PhaseProgress:
         if phase in self.span:
             lo, width = self.span[phase]
             fraction = 0.97 * (lo + width * share) / self.total
-        message = PHASE_LABELS.get(phase, phase)
+        message = poses.PHASE_LABELS.get(phase, phase)
         if total:
             message += f" ({done}/{total})"
         elapsed = time.monotonic() - self.phase_start
@@ -158,28 +150,28 @@ def undistorted_frames(result, progress: Progress) -> list[tuple[Path, Camera]] 
     if all(d is None or d.is_identity for d in lenses):
         return None
     final, partial = folder / UNDISTORTED, folder / f".{UNDISTORTED}.partial"
-    if final.is_dir():  # an earlier import of these poses made them: the same copies again
-        return [
-            (folder / "images" / file, cam)
-            if lens is None or lens.is_identity
-            else (final / f"{Path(file).stem}.png", undistorted_camera(cam, lens))
-            for file, cam, lens in zip(result.names, result.cameras, lenses, strict=True)
-        ]
-    shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir()
+    made = final.is_dir()  # an earlier import of these poses wrote the same copies
+    if not made:
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir()
     out: list[tuple[Path, Camera]] = []
     try:
         for i, (file, cam, lens) in enumerate(
             zip(result.names, result.cameras, lenses, strict=True)
         ):
-            progress(0.97 + 0.02 * i / len(lenses), f"undistorting photos ({i}/{len(lenses)})")
+            if not made:
+                progress(0.97 + 0.02 * i / len(lenses), f"undistorting photos ({i}/{len(lenses)})")
             if lens is None or lens.is_identity:
                 out.append((folder / "images" / file, cam))
                 continue
-            image, pinhole = undistort_view(read_image(folder / "images" / file), cam, lens)
-            write_image(partial / f"{Path(file).stem}.png", image)
-            out.append((final / f"{Path(file).stem}.png", pinhole))
-        os.replace(partial, final)
+            pinhole = undistorted_camera(cam, lens)
+            copy = f"{Path(file).stem}.png"
+            if not made:
+                image = undistort_image(read_image(folder / "images" / file), cam, lens, pinhole)
+                write_image(partial / copy, image)
+            out.append((final / copy, pinhole))
+        if not made:
+            os.replace(partial, final)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
