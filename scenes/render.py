@@ -31,6 +31,7 @@ from prosplat.convert.nerfstudio import Frame, write_transforms
 from prosplat.core.camera import Camera
 from prosplat.core.image_io import write_depth
 from prosplat.data.overlap import overlap_matrix
+from prosplat.data.render_jobs import DEFAULT_SIZE, image_size
 from prosplat.data.rigs import arc_rig, choose_rig
 from prosplat.data.splits import split_of
 from scenes.builders import SceneInfo, build_scene
@@ -50,13 +51,28 @@ def scene_folder_name(name: str, seed: int) -> str:
     return f"{name}_{seed:06d}"
 
 
+def _width_height(size: int | tuple[int, int]) -> tuple[int, int]:
+    """``N`` -> ``(N, N)``; ``(W, H)`` as it is."""
+    if isinstance(size, int):
+        return size, size
+    width, height = size
+    return int(width), int(height)
+
+
 def configure_render(
-    size: int, samples: int, denoise: bool, seed: int, threads: int, denoise_quality: str = "high"
+    size: int | tuple[int, int],
+    samples: int,
+    denoise: bool,
+    seed: int,
+    threads: int,
+    denoise_quality: str = "high",
 ) -> None:
     """Cycles on the CPU, plain sRGB output (Standard view transform, no dither), Z pass;
-    ``denoise_quality`` names the denoiser's settings (:data:`DENOISE_QUALITY`)."""
+    ``size`` is ``N`` for N x N px images or ``(width, height)``; ``denoise_quality`` names the
+    denoiser's settings (:data:`DENOISE_QUALITY`)."""
     if denoise_quality not in DENOISE_QUALITY:
         raise ValueError(f"denoise_quality {denoise_quality!r}: one of {sorted(DENOISE_QUALITY)}")
+    width, height = _width_height(size)
     sc = bpy.context.scene
     sc.render.engine = "CYCLES"
     sc.cycles.device = "CPU"
@@ -66,7 +82,8 @@ def configure_render(
     sc.cycles.denoising_prefilter, sc.cycles.denoising_quality = DENOISE_QUALITY[denoise_quality]
     sc.cycles.seed = seed
     sc.cycles.pixel_filter_type = "BOX"  # width set per pass in _render_view
-    sc.render.resolution_x = sc.render.resolution_y = size
+    sc.render.resolution_x, sc.render.resolution_y = width, height
+    sc.render.pixel_aspect_x = sc.render.pixel_aspect_y = 1.0  # square pixels: fx = fy
     sc.render.resolution_percentage = 100
     sc.render.film_transparent = False
     sc.render.dither_intensity = 0.0
@@ -158,7 +175,7 @@ def render_scene(
     name: str,
     seed: int,
     out: Path,
-    size: int = 128,
+    size: int | tuple[int, int] = DEFAULT_SIZE,
     n_inputs: int = 4,
     n_targets: int = 8,
     samples: int = 32,
@@ -173,6 +190,9 @@ def render_scene(
     """Build and render scene ``name`` (a family or a hard scene) for ``seed`` into ``out``.
 
     Returns the scene folder. Skips (returns at once) when the folder already exists.
+    ``size`` is ``N`` for N x N px images or ``(width, height)``: Blender's 36 mm sensor (fit
+    AUTO) spans the longer side, so every camera has ``fx = fy = lens_mm / 36 * max(W, H)`` and
+    its principal point at the image centre ``(W/2, H/2)``.
     ``progress`` prints one ``PROSPLAT_PROGRESS done total`` line per view to stdout (a parent
     process turns them into a progress bar: Blender's own log lines carry no count).
     ``blend`` also saves the built scene, with one camera object per rendered view, as a
@@ -197,21 +217,22 @@ def render_scene(
             rig = arc_rig(info.trajectory, arc, n_inputs)
         else:
             rig = choose_rig(info.trajectory, n_inputs, n_targets, seed)
+        width, height = _width_height(size)
         configure_render(
-            size, samples, denoise, seed, threads or os.cpu_count() or 1, denoise_quality
+            (width, height), samples, denoise, seed, threads or os.cpu_count() or 1, denoise_quality
         )
         sc = bpy.context.scene
         cam_obj = bpy.data.objects.new("prosplat_camera", bpy.data.cameras.new("prosplat_camera"))
         sc.collection.objects.link(cam_obj)
         sc.camera = cam_obj
-        fx = (lens_mm or info.lens_mm) / 36.0 * size
+        fx = (lens_mm or info.lens_mm) / 36.0 * max(width, height)  # sensor fit AUTO
         views = [(i, "input", None) for i in rig.inputs]
         views += [(i, "target", k) for i, k in zip(rig.targets, rig.target_kinds)]
         views.sort()
         frames, cameras, depths, view_seconds = [], [], [], []
         for v, (traj_index, split, kind) in enumerate(views):
             eye, look = info.trajectory[traj_index]
-            camera = Camera.look_at(eye, look, SKY_UP, fx, size, size)
+            camera = Camera.look_at(eye, look, SKY_UP, fx, width, height)
             _place_camera(cam_obj, camera)
             t_view = time.perf_counter()
             depth = _render_view(
@@ -320,7 +341,15 @@ def main(argv: list[str] | None = None) -> int:
         "PROSPLAT_FAILED line (instead of --name/--seed)",
     )
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument(
+        "--size",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"N x N px images (default {DEFAULT_SIZE} when no --width/--height is given)",
+    )
+    ap.add_argument("--width", type=int, default=None, help="image width in px, with --height")
+    ap.add_argument("--height", type=int, default=None, help="image height in px, with --width")
     ap.add_argument("--inputs", type=int, default=4)
     ap.add_argument("--targets", type=int, default=8)
     ap.add_argument("--samples", type=int, default=32)
@@ -337,13 +366,17 @@ def main(argv: list[str] | None = None) -> int:
         "sweep for structure from motion; --targets is ignored)",
     )
     args = ap.parse_args(argv)
+    try:
+        size = image_size(args.size, args.width, args.height)
+    except ValueError as e:
+        ap.error(str(e))
 
     def one(name: str, seed: int) -> Path:
         return render_scene(
             name,
             seed,
             args.out,
-            args.size,
+            size,
             args.inputs,
             args.targets,
             args.samples,

@@ -17,15 +17,17 @@ from pathlib import Path
 from queue import Empty, Queue
 
 from prosplat.cli.options import int_between
-from prosplat.data.render_jobs import read_answer
+from prosplat.data.render_jobs import DEFAULT_SIZE, MIN_SIZE, image_size, read_answer, size_options
 from prosplat.data.scene_sets import SCENE_SETS, link_subset, parse_seeds
 from prosplat.data.splits import family_for_seed, split_of
 
 
 def render_worker_command(args: argparse.Namespace) -> list[str]:
     """The command line of one long-lived Blender worker of ``prosplat scenes render``: Cycles
-    gets ``--threads`` threads, by default the machine's cores shared by the workers."""
+    gets ``--threads`` threads, by default the machine's cores shared by the workers. Raises
+    ``ValueError`` for an image size :func:`~prosplat.data.render_jobs.image_size` refuses."""
     threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
+    width, height = image_size(args.size, args.width, args.height)
     return [
         sys.executable,
         "-m",
@@ -33,8 +35,7 @@ def render_worker_command(args: argparse.Namespace) -> list[str]:
         "--jobs-from-stdin",
         "--out",
         str(args.out),
-        "--size",
-        str(args.size),
+        *size_options(width, height),
         "--inputs",
         str(args.inputs),
         "--targets",
@@ -51,11 +52,13 @@ def cmd_scenes_render(args: argparse.Namespace) -> int:
     (``scenes.render --jobs-from-stdin``), each fed the next missing scene as it finishes one."""
     from tqdm import tqdm
 
-    if args.count < 1 or args.workers < 1 or args.size < 8 or args.samples < 1:
-        print(
-            "prosplat scenes render: --count, --workers, --samples must be >= 1 and --size >= 8",
-            file=sys.stderr,
-        )
+    if args.count < 1 or args.workers < 1 or args.samples < 1:
+        print("prosplat scenes render: --count, --workers, --samples must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        image_size(args.size, args.width, args.height)
+    except ValueError as e:
+        print(f"prosplat scenes render: {e}", file=sys.stderr)
         return 2
     if args.threads is not None and args.threads < 1:
         print("prosplat scenes render: --threads must be >= 1", file=sys.stderr)
@@ -242,7 +245,26 @@ def add_parser(sub) -> None:
     rend.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     rend.add_argument("--count", type=int, default=1, help="number of scenes (default 1)")
     rend.add_argument("--out", type=Path, required=True, help="dataset folder")
-    rend.add_argument("--size", type=int, default=128, help="square image size in px (default 128)")
+    rend.add_argument(
+        "--size",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"square images, N x N px (default {DEFAULT_SIZE} x {DEFAULT_SIZE} when neither "
+        "--size nor --width/--height is given)",
+    )
+    rend.add_argument(
+        "--width",
+        type=int,
+        default=None,
+        metavar="W",
+        help=f"image width in px, with --height (instead of --size), e.g. --width 128 --height "
+        f"72 for 16:9; each side >= {MIN_SIZE}. The lens spans the longer side (Blender's "
+        "36 mm sensor, fit AUTO), so fx = fy = lens_mm / 36 * max(W, H)",
+    )
+    rend.add_argument(
+        "--height", type=int, default=None, metavar="H", help="image height in px, with --width"
+    )
     rend.add_argument(
         "--inputs", type=int, default=4, help="input views per scene, 2-6 (default 4)"
     )

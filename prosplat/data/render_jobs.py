@@ -8,6 +8,10 @@ The parent writes ``NAME SEED`` lines; the worker answers each with one line hol
 (``error``: the last lines of the traceback). Blender's C code prints to the same stdout
 through its own buffer, so an answer may follow some of Blender's text on its line: the
 parent looks for the marker anywhere in a line, and the answer runs to the line's end.
+
+The image size travels on the worker's command line, not in the job lines: every scene of
+one run shares it. :func:`image_size` checks ``--size`` / ``--width --height`` the same way on
+both sides, and :func:`size_options` writes the worker's options for a checked size.
 """
 
 from __future__ import annotations
@@ -18,6 +22,32 @@ from typing import IO, Any
 
 DONE = "PROSPLAT_DONE "
 FAILED = "PROSPLAT_FAILED "
+
+DEFAULT_SIZE = 128  #: ``--size`` when no size is given: 128 x 128 px
+MIN_SIZE = 8  #: the smallest image side, in px
+
+
+def image_size(size: int | None, width: int | None, height: int | None) -> tuple[int, int]:
+    """The ``(width, height)`` in px that ``--size N`` (N x N) or ``--width W --height H``
+    asks for; neither gives :data:`DEFAULT_SIZE` squared. Raises ``ValueError`` with a
+    one-line message naming the fix for both kinds together, only one of width and height,
+    or a side below :data:`MIN_SIZE`."""
+    if size is not None and (width is not None or height is not None):
+        raise ValueError(
+            "--size N renders N x N; for other shapes pass --width W --height H without --size"
+        )
+    if (width is None) != (height is None):
+        raise ValueError("--width and --height go together; pass both (or --size N for N x N)")
+    if width is None or height is None:
+        width = height = DEFAULT_SIZE if size is None else size
+    if width < MIN_SIZE or height < MIN_SIZE:
+        raise ValueError(f"image sides must be >= {MIN_SIZE} px, got {width} x {height}")
+    return width, height
+
+
+def size_options(width: int, height: int) -> list[str]:
+    """A worker's command-line options for images ``width`` x ``height`` px."""
+    return ["--width", str(width), "--height", str(height)]
 
 
 def answer_line(done: bool, answer: dict[str, Any]) -> str:

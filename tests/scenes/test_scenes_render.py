@@ -61,7 +61,7 @@ def tabletop(tmp_path_factory) -> tuple[Path, float]:
 
 def reprojection_errors(src: Camera, src_depth, src_img, dst: Camera, dst_depth, dst_img):
     """Depth relative error and colour error of src's pixels that dst sees (not occluded)."""
-    h, w = src_depth.shape
+    h, w = dst_depth.shape  # dst's image bounds the reprojected pixels
     d = src_depth.double()
     # Skip depth discontinuities: the Z pass is one sample per pixel, colours are averaged.
     pad = F.pad(d[None, None], (1, 1, 1, 1), mode="replicate")[0, 0]
@@ -288,3 +288,81 @@ def test_a_scene_published_meanwhile_by_another_run_is_kept(tmp_path):
     (broken / "images").mkdir(parents=True)
     with pytest.raises(OSError):
         _publish(scene(tmp_path / ".open_000002.partial-3", "third"), broken)
+
+
+WIDE = (96, 54)  # 16:9
+
+
+@pytest.fixture(scope="module")
+def wide(tmp_path_factory) -> tuple[Path, list[str]]:
+    """A 16:9 tabletop scene rendered through ``prosplat scenes render --width --height`` (the
+    CLI, its worker's command line and ``render_scene``); returns the folder and the command."""
+    out = tmp_path_factory.mktemp("wide")
+    cmd = [sys.executable, "-m", "prosplat", "scenes", "render", "--out", str(out)]
+    cmd += ["--scene", "tabletop", "--seed", "7", "--count", "1", "--workers", "1"]
+    cmd += ["--width", str(WIDE[0]), "--height", str(WIDE[1]), "--inputs", "2", "--targets", "1"]
+    cmd += ["--samples", "4"]
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return out / "tabletop_000007", cmd
+
+
+def test_a_16_9_scene_has_w_by_h_images_and_centred_square_pixel_cameras(wide):
+    from PIL import Image
+
+    from scenes.builders import build_scene
+
+    w, h = WIDE
+    sc = load_scene(wide[0])
+    assert sc.images.shape == (3, 3, h, w) and sc.depths.shape == (3, h, w)
+    for v in range(3):
+        with Image.open(wide[0] / "images" / f"{v:03d}.png") as im:
+            assert im.size == (w, h)
+    # Blender's 36 mm sensor (fit AUTO) spans the longer side: fx = fy = lens / 36 * max(W, H)
+    fx = build_scene("tabletop", 7).lens_mm / 36.0 * max(w, h)
+    for cam in sc.cameras:
+        assert (cam.width, cam.height) == (w, h)
+        assert cam.fx == pytest.approx(fx, rel=1e-9) and cam.fy == cam.fx
+        assert (float(cam.K[0, 2]), float(cam.K[1, 2])) == (w / 2, h / 2)
+    assert len(sc.meta["input_overlap"]) == 2 and 0 < sc.meta["mean_input_overlap"] <= 1
+
+
+def test_a_16_9_scenes_depth_reprojects_between_views_and_a_square_focal_fails(wide):
+    """Blender's projection agrees with the cameras: every view's Z pass, unprojected and
+    reprojected into the others, matches their depth. The focal length of the shorter side
+    (Blender's sensor fit misread) fails the same check."""
+    sc = load_scene(wide[0])
+    rel, _, _, pairs = pooled_errors(sc, sc.cameras)
+    assert pairs >= 4
+    assert rel.median() < 0.002 and (rel < 0.01).float().mean() > 0.9
+    short_side = []
+    for cam in sc.cameras:
+        K = cam.K.clone()
+        K[0, 0] = K[1, 1] = cam.fx * min(WIDE) / max(WIDE)
+        short_side.append(Camera(K, cam.world_to_cam, cam.width, cam.height))
+    bad = pooled_errors(sc, short_side)[0]
+    assert bad.median() > 5 * rel.median() and bad.median() > 0.002
+
+
+def test_a_finished_16_9_scene_is_skipped(wide):
+    cmd = wide[1]
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "1 of 1 scenes already rendered" in res.stdout
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (("--size", "64", "--width", "96", "--height", "54"), "without --size"),
+        (("--width", "96"), "--width and --height go together"),
+        (("--width", "96", "--height", "6"), ">= 8 px"),
+    ],
+)
+def test_the_renderer_refuses_bad_image_sizes(tmp_path, capsys, extra, message):
+    from scenes.render import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--name", "tabletop", "--seed", "7", "--out", str(tmp_path / "never"), *extra])
+    assert stop.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "never").exists()
