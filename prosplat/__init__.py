@@ -11,6 +11,7 @@ from prosplat.improve.mori import mori_scores, overlap_scores, select_reference
 from prosplat.pipeline.enhance import EnhancedView
 from prosplat.pipeline.model import ProSplat
 from prosplat.pipeline.reconstruction import Reconstruction
+from prosplat.pipeline.trust import TrustEstimate, leave_one_out
 from prosplat.render import RenderOutput, render
 
 __all__ = [
@@ -21,7 +22,9 @@ __all__ = [
     "ProSplat",
     "Reconstruction",
     "RenderOutput",
+    "TrustEstimate",
     "fundamental_matrix",
+    "leave_one_out",
     "mori_scores",
     "overlap_scores",
     "read_ply",

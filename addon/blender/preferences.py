@@ -172,9 +172,9 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     refine_seconds: FloatProperty(
         name="Refine Seconds", default=runtime.Defaults.refine_seconds, min=0.0, soft_max=60.0,
         description="After reconstructing, fit the Gaussians to the input images for this many "
-        "seconds (0: off). The default 3 s is about 100-200 steps at Input Size 128, which "
-        "measured +0.2 dB on enhanced new views (100 steps, generator v16, stage 2 v22); Esc "
-        "cancels",
+        "seconds (0: off). The default 3 s is about 100-200 steps at Input Size 128 (fewer at "
+        "512), which measured +0.2 dB on enhanced new views at 128 px (100 steps, generator "
+        "v16, stage 2 v22); Esc cancels",
     )  # fmt: skip
     distill_steps: IntProperty(
         name="Distill Steps", default=runtime.Defaults.distill_steps, min=0, soft_max=2000,
@@ -188,9 +188,10 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
     max_input_size: IntProperty(
         name="Input Size", default=runtime.Defaults.max_input_size, min=32, soft_max=1024,
         description="Long side (pixels) input images are scaled to: the size the Gaussians "
-        "are made at (one per input pixel, up to 2x the generator's size), refinement fits and "
+        "are made at (one per input pixel, up to 4x the generator's size), refinement fits and "
         "stage 2's references come at. The generator matches the views at the size its "
-        "weights were trained at (128 px high for the shipped ones) when that is smaller",
+        "weights were trained at (128 px high for the shipped ones) when that is smaller. "
+        "The default 512 suits cameras that render 512 px to 1080p; lower is faster",
     )  # fmt: skip
     python_path: StringProperty(
         name="External Python", subtype="FILE_PATH",

@@ -39,7 +39,9 @@ class Defaults:
     budget: int = 0
     refine_seconds: float = 3.0  # README, "Refinement": why this default
     distill_steps: int = 0  # README, "Consistent views": off, since it costs before frame one
-    max_input_size: int = 128  # the size refinement fits; the generator runs at its own
+    max_input_size: int = (
+        512  # the size the Gaussians are made at; the generator matches at its own
+    )
     python_path: str = ""
     threads: int = 0  # 0: automatic, prosplat.worker.threads.auto_threads
     keep_worker: bool = True

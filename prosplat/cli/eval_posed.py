@@ -6,6 +6,7 @@ and the posed-set preparation are shared with ``prosplat reconstruct``
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -21,12 +22,14 @@ from prosplat.cli.reconstruct import (
     refine_kwargs,
     render_selection,
     repeats_note,
+    trust_line,
 )
 from prosplat.core.image_io import write_image
 from prosplat.core.paths import staged_folder
 from prosplat.eval import posed as engine
 from prosplat.geometry.budget import budget_arg
 from prosplat.pipeline.posed_views import load_posed_set, load_views
+from prosplat.pipeline.trust import leave_one_out
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -91,8 +94,18 @@ def run(args: argparse.Namespace) -> int:
         rows = engine.score_cases(model, cases, budget=budget, background=background,
                            reconstruct_kwargs=kwargs, sheet=sheet,
                            other_views_opacity=args.other_views_opacity)  # fmt: skip
+        trust = [leave_one_out(model, c.images, c.cameras, c.near, c.far) for c in cases]
+        trust_lines = [
+            (f"{c.name}: " if len(cases) > 1 else "") + trust_line(t) for c, t in zip(cases, trust)
+        ]
         with staged_folder(out) as partial:  # moved to --out only when complete
             table = engine.write_results(rows, partial, args.overwrite)
+            with open(partial / "summary.md", "a") as fh:
+                fh.write("\n" + "\n".join(trust_lines) + "\n")
+            table += "\n\n" + "\n".join(trust_lines)
+            (partial / "trust.json").write_text(
+                json.dumps({c.name: t.as_dict() for c, t in zip(cases, trust)}, indent=1)
+            )
             if len(sets) > 1:
                 per_set = engine.per_set_table(rows)
                 with open(partial / "summary.md", "a") as fh:
@@ -122,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     print(table)
     shown = [m for m in engine.ROWS if f"| {m} |" in table]
     print(
-        f"wrote {out / 'summary.md'}, scores.csv, scores.json and views.png (the first "
+        f"wrote {out / 'summary.md'}, scores.csv, scores.json, trust.json and views.png (the first "
         f"{len(sheet)} targets: ground truth, {', '.join(shown)})"
     )
     return 0

@@ -50,12 +50,14 @@ from prosplat.cli import photo_input
 from prosplat.core.paths import staged_folder
 from prosplat.pipeline.distill import DEFAULT_DISTILL_STEPS
 from prosplat.pipeline.enhance import OTHER_VIEWS_OPACITY
+from prosplat.pipeline.trust import TrustEstimate, leave_one_out
 
 __all__ = [
     "DEFAULT_INPUTS",
     "ReconstructResult",
     "add_arguments",
     "add_common_arguments",
+    "trust_line",
     "near_far",
     "out_folder",
     "path_cameras",
@@ -134,6 +136,15 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         "about 1 s at 128 px)",
     )
     p.add_argument(
+        "--depth-edges",
+        choices=("drop", "snap", "off"),
+        default=None,
+        help="the Gaussians of pixels inside a depth ramp between two surfaces (the curtains "
+        "a generator's smooth depth hangs between a wall and what lies behind it) are dropped, "
+        "snapped onto the nearer surface, or left as they are (prosplat.geometry.depth_edges; "
+        "default: the model's own)",
+    )
+    p.add_argument(
         "--budget",
         type=float,
         default=None,
@@ -183,6 +194,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "black (prosplat.render.hole_fill): writes NAME_filled.png beside NAME_raw.png, and "
         "the enhanced renders blend with that fill where the Gaussians do not cover them; "
         "not for sets composited over a background",
+    )
+    p.add_argument(
+        "--no-trust-check",
+        action="store_true",
+        help="skip the leave-one-out check before rendering (each input left out, the rest "
+        "reconstructed at 128 px and its camera re-rendered, against its nearest photo "
+        "pasted there; prosplat.pipeline.trust): it warns in one line when the views would "
+        "score below simply showing the nearest photo, and costs one small reconstruction "
+        "per input (up to 4)",
     )
     p.add_argument(
         "--max-renders",
@@ -305,6 +325,8 @@ class ReconstructResult:
     timings: dict[str, float] = field(default_factory=dict)
     #: the pose step, when the input was photos or a video (None for a posed set)
     photos: photo_input.PhotoPoses | None = None
+    #: the leave-one-out estimate (:mod:`prosplat.pipeline.trust`), None when not run
+    trust: TrustEstimate | None = None
 
 
 def near_far(posed, inputs: list[int], cameras, near, far) -> tuple[float, float, str]:
@@ -396,9 +418,15 @@ def load_model(args: argparse.Namespace):
     if generator and args.weights:
         raise ValueError("pass either --weights (a prosplat generator) or --generator (DepthSplat)")
     sweep = False if getattr(args, "no_depth_sweep", False) else None
-    return ProSplat.from_pretrained(
+    model = ProSplat.from_pretrained(
         args.weights, generator=generator, improve=improve, depth_sweep=sweep
     )
+    edges = getattr(args, "depth_edges", None)
+    if edges is not None:
+        from prosplat.geometry.depth_edges import EdgeOptions
+
+        model.depth_edges = None if edges == "off" else EdgeOptions(remedy=edges)
+    return model
 
 
 def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
@@ -514,6 +542,11 @@ def _reconstruct_into(out: Path, args: argparse.Namespace, photos=None) -> Recon
         f"near {near:.3g}, far {far:.3g} ({nf_source})"
     )
     g, t_recon, note = reconstruct_gaussians(model, images, cameras, near, far, args)
+    trust = None
+    if (which or path) and not getattr(args, "no_trust_check", False):
+        trust = leave_one_out(model, images, cameras, near, far)
+        if (message := trust.message()) is not None:
+            print(message)
     out.mkdir(parents=True, exist_ok=True)
     write_ply(g, out / "gaussians.ply", overwrite=args.overwrite)
     (out / "inputs").mkdir(exist_ok=True)
@@ -563,6 +596,7 @@ def _reconstruct_into(out: Path, args: argparse.Namespace, photos=None) -> Recon
         size=size,
         timings={"reconstruct": t_recon, "views": t_views},
         photos=photos,
+        trust=trust,
     )
     result.timings["total"] = time.perf_counter() - t_start
     _write_report(result, posed, note, rows, args)
@@ -603,6 +637,20 @@ def _distill_renders(g, images, cameras, todo, enhanced, background, args, out: 
     )
 
 
+def trust_line(t: TrustEstimate) -> str:
+    """The leave-one-out estimate in one line: the scores, and the warning when the paste
+    wins."""
+    if not t.views:
+        return "leave-one-out: fewer than 3 inputs, no estimate"
+    model_db = sum(t.model_psnr) / len(t.views)
+    paste_db = sum(t.paste_psnr) / len(t.views)
+    head = (
+        f"leave-one-out over {len(t.views)} inputs: re-rendered {model_db:.2f} dB, "
+        f"nearest photo pasted {paste_db:.2f} dB"
+    )
+    return f"{head}; {t.message()}" if t.loses_to_paste else f"{head}: no warning"
+
+
 def _write_report(result: ReconstructResult, posed, note: str, rows, args) -> None:
     lens = sorted({v.distortion.model for v in posed.views if v.distortion is not None})
     lines = [
@@ -617,6 +665,7 @@ def _write_report(result: ReconstructResult, posed, note: str, rows, args) -> No
         f"- background for RGBA: {result.background}",
         f"- near/far: {result.near:.4g} / {result.far:.4g} from {result.near_far_source}",
         f"- Gaussians: {result.gaussians:,} ({note}); `gaussians.ply`",
+        *([f"- {trust_line(result.trust)}"] if result.trust is not None else []),
         f"- time: reconstruct {result.timings['reconstruct']:.2f} s, render + enhance "
         f"{result.timings['views']:.2f} s for {len(result.rendered)} views, total "
         f"{result.timings['total']:.1f} s",

@@ -7,9 +7,9 @@ bottom (edge replicate) and the result cropped back. Padding there leaves pixel 
 and so the fundamental matrix, unchanged.
 
 Any camera size: a view larger than the model's ``working_size`` (the largest view it runs on
-directly: 128 for the shipped v5, the largest size it was trained at) is enhanced at that
-size, and only the change, ``enhanced - raw`` at the working size, is upsampled and added to
-the full-resolution render. The render
+directly: 256 for the shipped v22) is enhanced at that size, and only the change is upsampled
+and added to the full-resolution render with its holes filled (``enhanced - filled render``
+at the working size, :class:`EnhanceOptions` ``carry``). The render
 keeps its own detail, the model sees textures near the scale it learned, memory stays bounded
 by the working size whatever the camera (a 4K frame costs what a working-size one does), and
 there are no tile seams.
@@ -258,6 +258,16 @@ class EnhanceOptions:
         max_departure: the largest mean absolute change (colour units, 0-1) the model may
             make on the pixels the render is confident about (alpha > ``confident_alpha``).
         confident_alpha: the alpha above which a rendered pixel counts as confident.
+        carry: what a view larger than ``working_size`` carries the model's change onto.
+            ``"filled"`` (the default): the render with its holes filled at full size
+            (:func:`prosplat.render.hole_fill.fill_colour`), the change being the model's
+            output less that filled render at the working size: the full-size render and
+            fill keep the detail, stage 2 adds what it changes at its own scale. ``"raw"``:
+            the render on black, the change including the model's own fill of the holes,
+            upsampled: the full-size gaps between splats stay black under a blurred fill, a
+            dotted lattice that stage 2 turned into a grid (at 512 px on the 6 test scenes
+            the enhanced view scored 18.37 dB / LPIPS 0.662 so, 19.02 / 0.407 filled, the
+            generator's filled raw view 18.71 / 0.395; BENCHMARKS.md, "Artist resolution").
     """
 
     working_size: int | None = None
@@ -265,8 +275,11 @@ class EnhanceOptions:
     min_coverage: float = 0.05
     max_departure: float = 0.25
     confident_alpha: float = 0.9
+    carry: str = "filled"
 
     def __post_init__(self) -> None:
+        if self.carry not in ("raw", "filled"):
+            raise ValueError(f"carry must be 'raw' or 'filled', got {self.carry!r}")
         if self.working_size is not None and self.working_size < 0:
             raise ValueError(f"working_size must be >= 0 or None, got {self.working_size}")
         if not 0.0 <= self.min_coverage <= 1.0 or not 0.0 <= self.confident_alpha < 1.0:
@@ -327,11 +340,15 @@ def enhance(
     working_size: int | None = None,
     alpha: Tensor | None = None,
     warp: Tensor | None = None,
+    carry: str = "filled",
 ) -> Tensor:
     """Run ``improver`` on one render ``raw [3,H,W]`` with its reference; returns [3,H,W].
 
     Views larger than ``working_size`` (None: the model's ``config.working_size``; 0: no
-    limit) are enhanced at that size and the change is carried up (module docstring).
+    limit) are enhanced at that size and the change is carried up (module docstring) onto
+    the render with its holes filled at full size (``carry="filled"``; needs ``alpha``,
+    without it the render as it is) or onto the render on black (``"raw"``;
+    :class:`EnhanceOptions`).
     ``alpha [H,W]`` is the render's coverage, for models with ``config.alpha_input``;
     ``warp [4,H,W]`` the reference warped into the view and its validity
     (:func:`prosplat.improve.warp.reference_warp`), for models with ``config.warp_input``.
@@ -359,7 +376,14 @@ def enhance(
         small = stack[:3]
         small_alpha = stack[3] if alpha is not None else None
         small_warp = stack[-4:] if warp is not None else None
-        change = _enhance_native(
+        base, small_base = raw, small
+        if carry == "filled" and alpha is not None:
+            a = alpha.to(raw)
+            base = raw + (1 - a) * fill_colour(raw, a)  # [3,H,W]
+            small_base = F.interpolate(
+                base[None], size=(hs, ws), mode="bilinear", align_corners=False, antialias=True
+            )[0]
+        enhanced_small = _enhance_native(
             improver,
             small,
             camera.resized(ws, hs),
@@ -368,9 +392,10 @@ def enhance(
             dtype,
             small_alpha,
             small_warp,
-        ) - small.to(dtype=torch.float32)  # [3,hs,ws] on the model's device
+        )  # [3,hs,ws] on the model's device
+        change = enhanced_small - small_base.to(enhanced_small.device, torch.float32)
         up = F.interpolate(change[None], size=(h, w), mode="bilinear", align_corners=False)[0]
-        return (raw.to(up.device, torch.float32) + up).clamp(0.0, 1.0)
+        return (base.to(up.device, torch.float32) + up).clamp(0.0, 1.0)
     return _enhance_native(
         improver, raw, camera, reference_image, reference_camera, dtype, alpha, warp
     )
@@ -498,6 +523,7 @@ def render_view(
             options.working_size,
             out.alpha,
             warp,
+            options.carry,
         ).to(out.rgb.device)
     t3 = time.perf_counter()
     timings.update(mori_ms=1e3 * (t2 - t1), enhance_ms=1e3 * (t3 - t2))

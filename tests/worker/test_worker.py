@@ -188,6 +188,7 @@ def test_reconstruct_then_render(scene, tmp_path: Path) -> None:
               "ply": str(tmp_path / "g.ply"), "near": 0.5, "far": 10.0}  # fmt: skip
     res = run_task("reconstruct", params)
     assert res["count"] <= 3000 and res["stats"]["input"] == 2 * 64 * 64
+    assert res["trust"] is None and res["trust_warning"] is None  # 2 views: no estimate
     assert len(read_ply(tmp_path / "g.ply")) == res["count"]
     targets = [{"name": "cam 1", "camera": camera_to_blender_dict(cams[1])}]
     rp = {"arrays": res["arrays"], "targets": targets, "inputs": params["frames"],
@@ -200,6 +201,19 @@ def test_reconstruct_then_render(scene, tmp_path: Path) -> None:
     rp["output_dir"] = str(folder / "images")
     with pytest.raises(ValueError, match="holds the input images"):
         run_task("render", rp)
+
+
+def test_reconstruct_estimates_trust_from_three_views(scene) -> None:
+    """With 3 or more views the task leaves each out in turn (prosplat.pipeline.trust): the
+    scores come back, and the one-line warning exactly when the paste wins."""
+    folder, cams = scene
+    params = {"frames": _frames(folder, cams, [0, 1, 2]), "device": "cpu", "near": 0.5,
+              "far": 10.0, "budget": 2000}  # fmt: skip
+    res = run_task("reconstruct", params)
+    trust = res["trust"]
+    assert trust["views"] == [0, 1, 2] and len(trust["model_psnr"]) == 3
+    assert (res["trust_warning"] is not None) == trust["loses_to_paste"]
+    assert run_task("reconstruct", {**params, "trust_check": False})["trust"] is None
 
 
 def test_render_distills_the_views_into_one_set_of_gaussians(scene, tmp_path: Path) -> None:

@@ -20,6 +20,9 @@ DEFAULT_ROWS = (
     "flat", "paste", "optimize", "generator", "enhanced", "fill", "splat", "cull", "favour", "warp",
     "refine", "distill", "true-depth", "depthsplat",
 )  # fmt: skip
+#: rows that run only when named: the cross-view check (not shipped) and stage 2's change
+#: carried onto the render on black (the way before 2026-11-29)
+OPT_IN_ROWS = ("consistent", "carry")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, nargs="+", default=[4],
                         help="input-view counts, 2-6 (default 4)")  # fmt: skip
     parser.add_argument("--rows", nargs="+", default=list(DEFAULT_ROWS),
-                        help=f"ladder rows to run, from {', '.join(DEFAULT_ROWS)} (default all)")  # fmt: skip
+                        help=f"ladder rows to run, from {', '.join(DEFAULT_ROWS)} (default all of these) "
+                        f"and {', '.join(OPT_IN_ROWS)}")  # fmt: skip
     parser.add_argument("--opt-steps", type=int, nargs="*", default=[],
                         help="per-scene optimisation step counts, e.g. 300 1000 (slow; default none)")  # fmt: skip
     parser.add_argument("--refine-steps", type=int, nargs="*", default=[],
@@ -67,6 +71,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the generator's depth as it predicts it, without the local plane "
                         "sweep that moves it to where the inputs match (prosplat.pipeline.depth_sweep; "
                         "on by default for prosplat generators)")  # fmt: skip
+    parser.add_argument("--depth-edges", choices=("off", "drop", "snap"), default=None,
+                        help="the Gaussians of pixels inside a depth ramp between two surfaces "
+                        "(a curtain) are dropped, snapped onto the nearer surface, or left "
+                        "(prosplat.geometry.depth_edges; default: the model's own)")  # fmt: skip
+    parser.add_argument("--gaussian-scale", type=float, default=None,
+                        help="Gaussians at most this many times the generator's matching "
+                        "height (default: ProSplat.max_gaussian_scale)")  # fmt: skip
     parser.add_argument("--improve", default=None,
                         help="improvement-model checkpoint (default shipped)")  # fmt: skip
     parser.add_argument("--compare-improve", action="append", default=[], metavar="LABEL=PATH",
@@ -147,7 +158,10 @@ def command(args: argparse.Namespace) -> str:
     ):  # fmt: skip
         if getattr(args, flag):
             parts += [f"--{flag.replace('_', '-')}", *(f"{v:g}" for v in getattr(args, flag))]
-    for flag in ("generator", "generator_size", "improve", "depthsplat", "budget", "scenes"):
+    for flag in (
+        "generator", "generator_size", "improve", "depthsplat", "budget", "scenes",
+        "depth_edges", "gaussian_scale",
+    ):  # fmt: skip
         if getattr(args, flag) is not None:
             parts += [f"--{flag.replace('_', '-')}", str(getattr(args, flag))]
     for spec in args.compare_improve:

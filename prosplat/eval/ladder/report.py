@@ -135,6 +135,13 @@ def deltas_markdown(deltas: Sequence[dict], size: int, views: int) -> str:
     return "\n".join(lines)
 
 
+def _pct(e: dict, m: str) -> str:
+    """A share as a percentage with its interval, one decimal."""
+    if e[f"{m}_n"] == 0:
+        return "–"
+    return f"{100 * e[m]:.1f} [{100 * e[f'{m}_lo']:.1f}, {100 * e[f'{m}_hi']:.1f}]"
+
+
 def _ci(e: dict, m: str, digits: int, signed: bool = False) -> str:
     if e[f"{m}_n"] == 0:
         return "–"
@@ -153,14 +160,15 @@ def markdown(summary: Sequence[dict], deltas: Sequence[dict] = (), by_scene: boo
         lines = [
             f"### {size} px, {views} input views ({scenes} scenes, {n} targets)",
             "",
-            "| row | PSNR ↑ | SSIM ↑ | LPIPS ↓ | depth AbsRel ↓ | PSNR valid ↑ | SSIM valid ↑ "
+            "| row | PSNR ↑ | SSIM ↑ | LPIPS ↓ | depth AbsRel ↓ | floaters % ↓ | PSNR valid ↑ | SSIM valid ↑ "
             "| LPIPS valid ↓ | AbsRel valid ↓ | recon s | ms/view | amortised ms/view |",
-            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for e in overall:
             lines.append(
                 f"| {e['rung']} | {_ci(e, 'psnr', 2)} | {_ci(e, 'ssim', 3)} | "
-                f"{_ci(e, 'lpips', 3)} | {_ci(e, 'abs_rel', 3)} | {_ci(e, 'psnr_valid', 2)} | "
+                f"{_ci(e, 'lpips', 3)} | {_ci(e, 'abs_rel', 3)} | {_pct(e, 'floaters')} | "
+                f"{_ci(e, 'psnr_valid', 2)} | "
                 f"{_ci(e, 'ssim_valid', 3)} | {_ci(e, 'lpips_valid', 3)} | "
                 f"{_ci(e, 'abs_rel_valid', 3)} | {e['recon_s']:.2f} | "
                 f"{e['view_ms']:.1f} | {e['amortised_ms']:.1f} |"
@@ -177,7 +185,8 @@ def markdown(summary: Sequence[dict], deltas: Sequence[dict] = (), by_scene: boo
         f"resamples of the {'scenes (all targets of a drawn scene)' if by_scene else 'targets'}); "
         "paired differences: the same over per-target differences. "
         "*valid*: scored only on the pixels whose surface at least one input sees (Blender "
-        "depth, reprojected, occlusion-tested). Times are medians: recon "
+        "depth, reprojected, occlusion-tested). *floaters*: the share of the target pixels "
+        "with a true surface where the drawn depth lies more than 10 % in front of it. Times are medians: recon "
         "per scene, ms/view per target, amortised = recon / targets + ms/view."
     )
     return "\n\n".join(parts + [notes]) + "\n"

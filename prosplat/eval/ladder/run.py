@@ -23,7 +23,7 @@ from prosplat.data.scene import SceneData, resize_views
 from prosplat.eval.ladder.geometry import resize_depths, valid_mask
 from prosplat.eval.ladder.rungs import Rung, SceneInputs, View
 from prosplat.eval.ladder.stats import overlap_bin
-from prosplat.metrics.depth import abs_rel
+from prosplat.metrics.depth import abs_rel, floater_share
 
 
 @dataclass
@@ -44,6 +44,7 @@ class TargetScore:
     ssim: float
     lpips: float
     abs_rel: float
+    floaters: float  # share of pixels with true depth drawn > 10 % in front of it
     valid_fraction: float  # of the target's pixels
     psnr_valid: float
     ssim_valid: float
@@ -54,7 +55,7 @@ class TargetScore:
     n_targets: int  # targets of the scene (amortised time = recon / n_targets + view)
 
 
-METRICS = ("psnr", "ssim", "lpips", "abs_rel")
+METRICS = ("psnr", "ssim", "lpips", "abs_rel", "floaters")
 VALID_METRICS = ("psnr_valid", "ssim_valid", "lpips_valid", "abs_rel_valid")
 
 
@@ -78,7 +79,8 @@ def score_image(
     alpha: Tensor | None = None,
     gt_depth: Tensor | None = None,
 ) -> dict[str, float]:
-    """PSNR/SSIM/LPIPS of ``pred`` [3,H,W] against ``gt`` (and AbsRel when depths are given);
+    """PSNR/SSIM/LPIPS of ``pred`` [3,H,W] against ``gt`` (and AbsRel and the floater share,
+    :func:`prosplat.metrics.depth.floater_share`, when depths are given);
     with ``mask`` [H,W] bool, the ``*_valid`` versions too. A metric that cannot be taken
     (LPIPS under 32 px, an empty or border-only mask) is NaN."""
     from prosplat.metrics import lpips, psnr, ssim
@@ -88,11 +90,9 @@ def score_image(
     out = {"psnr": float(psnr(pred, gt)), "ssim": float(ssim(pred, gt))}
     with torch.no_grad():
         out["lpips"] = float(lpips(pred, gt)) if big else math.nan
-    out["abs_rel"] = (
-        abs_rel(depth, gt_depth, alpha)
-        if depth is not None and gt_depth is not None and alpha is not None
-        else math.nan
-    )
+    geometry = depth is not None and gt_depth is not None and alpha is not None
+    out["abs_rel"] = abs_rel(depth, gt_depth, alpha) if geometry else math.nan
+    out["floaters"] = floater_share(depth, gt_depth, alpha) if geometry else math.nan
     if mask is not None:
         out["abs_rel_valid"] = (
             abs_rel(depth, torch.where(mask, gt_depth, torch.zeros_like(gt_depth)), alpha)

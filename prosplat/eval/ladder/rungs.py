@@ -37,6 +37,7 @@ from torch import Tensor
 from prosplat.core.camera import Camera
 from prosplat.eval.ladder.geometry import true_depth_gaussians
 from prosplat.geometry.consistency import DEFAULT_TAU, cross_view_check
+from prosplat.geometry.depth_edges import EdgeOptions
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import reference_warp, warp_for
 from prosplat.pipeline.enhance import MAX_SPLAT_RADIUS, OTHER_VIEWS_OPACITY
@@ -114,6 +115,10 @@ class LadderContext:
                 depth_sweep=False if self.options.get("no_depth_sweep") else None,
             )
             self._model.full_res_gaussians = not self.options.get("low_res_gaussians")
+            if (edges := self.options.get("depth_edges")) is not None:
+                self._model.depth_edges = None if edges == "off" else EdgeOptions(remedy=edges)
+            if (scale := self.options.get("gaussian_scale")) is not None:
+                self._model.max_gaussian_scale = float(scale)
         return self._model
 
     def improver(self, rung: str):
@@ -220,19 +225,20 @@ def paste_rungs(ctx: LadderContext) -> list[Rung]:
 def splat_view(
     gaussians, cam: Camera, inputs: SceneInputs, improver=None, dtype=None, fill_holes=False,
     splat_scale: float = 1.0, max_splat_radius: float | None = MAX_SPLAT_RADIUS,
-    other_views_opacity: float = OTHER_VIEWS_OPACITY,
+    other_views_opacity: float = OTHER_VIEWS_OPACITY, options=None,
 ) -> View:  # fmt: skip
     """Render ``gaussians`` at ``cam`` and, with ``improver``, enhance it (MORI reference);
     ``fill_holes``: the raw render's holes filled (:mod:`prosplat.render.hole_fill`);
     ``splat_scale``: the Gaussians' scales multiplied by it; ``max_splat_radius``: splats
     wider than that fraction of the view left out; ``other_views_opacity``: the colour
-    favours the input MORI picks (:func:`prosplat.pipeline.enhance.render_view`)."""
+    favours the input MORI picks; ``options`` how stage 2 is applied
+    (:func:`prosplat.pipeline.enhance.render_view`)."""
     from prosplat.pipeline.enhance import render_view
 
     out = render_view(
         gaussians, cam, inputs.images, inputs.cameras, improver, dtype=dtype or torch.float32,
         fill_holes=fill_holes, splat_scale=splat_scale, max_splat_radius=max_splat_radius,
-        other_views_opacity=other_views_opacity,
+        other_views_opacity=other_views_opacity, options=options,
     )  # fmt: skip
     return View(
         out.image,
@@ -316,6 +322,34 @@ def _filled_view(improver=None, dtype=None) -> Callable[[Any, Camera, SceneInput
         return splat_view(g, cam, inp, improver, dtype, fill_holes=True)
 
     return view
+
+
+@register("carry")
+def carry_rungs(ctx: LadderContext) -> list[Rung]:
+    """Stage 2's change at its working size carried onto the full-size render on black
+    (``EnhanceOptions(carry="raw")``, the way before 2026-11-29) instead of onto the render
+    with its holes filled (the default): per improvement model ``enhanced ⇡raw`` and
+    ``enhanced filled ⇡raw``, to pair with the ``enhanced`` and ``enhanced filled`` rows.
+    The same as those at or below the working size."""
+    from prosplat.pipeline.enhance import EnhanceOptions
+
+    improvers, dtype = ctx.improvers("enhanced ⇡raw"), _dtype(ctx)
+    if not improvers:
+        ctx.improver("enhanced ⇡raw")  # raises SkipRung with the reason
+    recon, options = _generator_gaussians(ctx), EnhanceOptions(carry="raw")
+
+    def view(imp, fill: bool):
+        def run(g, cam: Camera, inp: SceneInputs) -> View:
+            return splat_view(g, cam, inp, imp, dtype, fill_holes=fill, options=options)
+
+        return run
+
+    return [
+        Rung(f"enhanced{filled} ⇡raw{suffix}", recon, view(imp, bool(filled)), "generator",
+             depth=True)
+        for suffix, imp in improvers.items()
+        for filled in ("", " filled")
+    ]  # fmt: skip
 
 
 @register("fill")
