@@ -428,7 +428,8 @@ def _show(img, show: bool = True):
 
 
 def describe_render(result: dict) -> str:
-    """One line for the status bar: views written, where, and each view's reference input."""
+    """One line for the status bar: views written, where, the median seconds per view, and
+    each view's reference input."""
     views = result.get("views", [])
     refs = [f"{v['name']}<-{v['reference_name']}" for v in views if v.get("reference_name")]
     text = f"{len(views)} view(s) written to {result.get('output_dir', '?')}"
@@ -436,6 +437,8 @@ def describe_render(result: dict) -> str:
         text = (f"{len(views)} frame(s) written to {result.get('output_dir', '?')} as "
                 f"{result['sequence']['pattern']}")  # fmt: skip
     kept = [f"{v.get('name', '?')}: {v['guard']}" for v in views if v.get("guard")]
+    if result.get("seconds_per_view") is not None:
+        text += f" ({result['seconds_per_view']:.2f} s per view)"
     text += f"; reference: {', '.join(refs[:6])}" if refs else ""
     if views and all(v.get("distilled") for v in views):
         text += "; rendered from the Gaussians distilled from every enhanced view"

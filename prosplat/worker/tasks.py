@@ -12,6 +12,7 @@ none) is :mod:`prosplat.worker.pose_task`.
 from __future__ import annotations
 
 import re
+import statistics
 import time
 from pathlib import Path
 from typing import Any
@@ -450,8 +451,10 @@ def task_render(params: dict, progress: Progress) -> dict:
         for i, (t, cam) in enumerate(zip(targets, cams)):
             what = f"frame {t['frame']}" if prefix else str(t.get("name", i))
             progress(start + (1 - start) * i / len(cams), f"rendering {what} ({i + 1}/{len(cams)})")
+            t_view = time.perf_counter()
             views.append(_render_and_save(model, g, cam, images, in_cams, enhance, params,
                                           progress, out_dir, t, i, prefix, written, frames))  # fmt: skip
+            views[-1]["seconds"] = time.perf_counter() - t_view  # render, enhance and write
             enhance = views[-1]["enhanced"]
             views[-1]["distilled"] = distilled
     except BaseException:
@@ -459,6 +462,7 @@ def task_render(params: dict, progress: Progress) -> dict:
             path.unlink(missing_ok=True)
         raise
     result: dict[str, Any] = {"views": views, "output_dir": str(out_dir)}
+    result["seconds_per_view"] = statistics.median(v["seconds"] for v in views)
     if prefix is not None:
         result["sequence"] = {"prefix": prefix, "frames": sequence[1],
                               "pattern": f"{prefix}_####.png", "first": views[0]["image"]}  # fmt: skip

@@ -193,3 +193,6 @@ def test_a_camera_path_shows_as_one_image_sequence(tmp_path: Path) -> None:
     assert len(bpy.data.images) == before + 1
     line = steps.describe_render(result)
     assert "3 frame(s)" in line and "Cam_####.png" in line
+    assert "s per view" not in line  # a result without the worker's timing
+    timed = steps.describe_render({**result, "seconds_per_view": 1.234})
+    assert "Cam_####.png (1.23 s per view)" in timed

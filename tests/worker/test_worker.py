@@ -196,6 +196,7 @@ def test_reconstruct_then_render(scene, tmp_path: Path) -> None:
     first = run_task("render", rp)
     second = run_task("render", rp)  # never overwrites: a numbered name instead
     assert Path(first["views"][0]["image"]).name == "cam_1.png"
+    assert 0 < first["views"][0]["seconds"] == first["seconds_per_view"]  # one view
     assert Path(second["views"][0]["image"]).name == "cam_1-2.png"
     assert Path(first["views"][0]["depth"]).is_file()
     rp["output_dir"] = str(folder / "images")
