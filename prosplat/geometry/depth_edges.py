@@ -23,7 +23,10 @@ On the ray-cast test scene with its depth blurred as a 4x-upsampling generator b
 in front of the truth went from 7.4 % to 0.3 % dropped and 3.0 % snapped, and the filled
 views' PSNR from 20.5 to 24.0 dB dropped and 23.8 dB snapped (true depth: 1.0 %, 26.7 dB).
 Snapping by colour (the side whose pixel looks more like this one) did worse than by depth
-on textured surfaces and is not offered.
+on textured surfaces and is not offered. On the shipped generator's own output it measured
+level (6 Blender scenes at 512 px, 7 real sets at 256 px; BENCHMARKS.md, "Depth ramps"):
+there the floaters are whole surfaces at a wrong depth, not thin ramps, so it is off by
+default (``ProSplat.depth_edges`` None, ``--depth-edges``).
 
 Everything is shifts of ``[V,H,W]`` maps (and one max pool to grow the dropped region).
 """

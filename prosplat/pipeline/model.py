@@ -56,9 +56,10 @@ TRAINED_SIZE = 128
 #: :meth:`ProSplat.reconstruct` places Gaussians at most this many times the matching height
 #: (512 px for the shipped weights). At 512 px on the 6 test scenes 4x against 2x gave the
 #: enhanced view 19.28 dB / LPIPS 0.351 against 19.02 / 0.407 and the filled raw view LPIPS
-#: 0.346 against 0.395 (level PSNR), in 1.25 s of reconstruction (BENCHMARKS.md, "Artist
-#: resolution"); larger inputs are resized to it first, since a 1080p camera's inputs would
-#: make 2 M Gaussians a view.
+#: 0.346 against 0.395 at level PSNR (both with the depth ramps dropped; BENCHMARKS.md,
+#: "Artist resolution"), and 4 inputs reconstruct in 1.3 s on 2 cores ("Speed at artist
+#: sizes"); larger inputs are resized to it first, since a 1080p camera's inputs would make
+#: 2 M Gaussians a view.
 MAX_GAUSSIAN_SCALE = 4
 
 
