@@ -36,7 +36,7 @@ from prosplat.core.gaussians import Gaussians
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import centre_distances, select_reference
 from prosplat.improve.warp import warp_for
-from prosplat.render import RenderOutput, render
+from prosplat.render import RenderOutput, render, render_pair
 from prosplat.render.hole_fill import fill_colour
 
 #: The splat scale (:meth:`Gaussians.with_scale_factor`) for the generator's *unrefined*
@@ -155,7 +155,8 @@ def render_favouring(
     fraction of their opacity; :func:`view_weights`); alpha, depth and visibility are the
     plain render's, so the coverage (and what a fill or stage 2 treats as a hole) does not
     change. Where only views of weight 0 draw, or the weighted render draws almost nothing
-    (alpha <= 1e-4), the colour is the plain render's. Two renders."""
+    (alpha <= 1e-4), the colour is the plain render's. One projection, two composites
+    (:func:`prosplat.render.render_pair`)."""
     if gaussians.views is None:
         raise ValueError("render_favouring needs Gaussians with views (the input view of each)")
     weights = torch.as_tensor(weights, dtype=torch.float64)
@@ -164,10 +165,8 @@ def render_favouring(
     g = gaussians
     if len(g) and int(g.views.max()) >= len(weights):
         raise ValueError(f"Gaussians of view {int(g.views.max())} but {len(weights)} weights")
-    out = render(g, camera, background=background)
     w = weights.to(g.opacities)[g.views]  # [N]
-    weighted = Gaussians.trusted(g.means, g.quats, g.scales, g.opacities * w, g.sh, g.views)
-    out_w = render(weighted, camera, background=background)
+    out, out_w = render_pair(g, camera, g.opacities * w, background=background)
     bg = torch.zeros(3) if background is None else torch.as_tensor(background)
     bg = bg.to(out.rgb)[:, None, None]  # [3,1,1]
     a, a_w = out.alpha[None], out_w.alpha[None]  # [1,H,W]

@@ -16,7 +16,7 @@ from prosplat.core.gaussians import Gaussians
 from prosplat.render.output import RenderOutput
 from prosplat.render.projection import ProjectedGaussians, project_gaussians
 
-__all__ = ["RenderOutput", "render", "project_gaussians", "ProjectedGaussians"]
+__all__ = ["RenderOutput", "render", "render_pair", "project_gaussians", "ProjectedGaussians"]
 
 
 def _background(background: Tensor | None, like: Tensor) -> Tensor:
@@ -77,30 +77,71 @@ def render(
     return _render_cpu(gaussians, camera, bg, fused=backend == "cpu-fused")
 
 
-def _render_cpu(
-    gaussians: Gaussians, camera: Camera, bg: Tensor, fused: bool = False
-) -> RenderOutput:
-    from prosplat.render.cpu import composite
+def render_pair(
+    gaussians: Gaussians,
+    camera: Camera,
+    colour_opacities: Tensor,
+    background: Tensor | None = None,
+    backend: str = "auto",
+) -> tuple[RenderOutput, RenderOutput]:
+    """``render(gaussians, camera)`` and the render of the same Gaussians with opacities
+    ``colour_opacities [N]`` (each at most its Gaussian's opacity), as two
+    :class:`RenderOutput`. Why: a view that favours one input's colour
+    (:func:`prosplat.pipeline.enhance.render_favouring`) needs both, and on the CPU the
+    projection is most of a render's time at artist sizes: here it runs once and only the
+    compositing twice. The same images as two :func:`render` calls: the pixel boxes of the
+    lower opacities lie inside those of the higher ones, and samples under 1/255 are skipped
+    either way. Opacities above the Gaussians' own (or another backend) take two renders."""
+    if not isinstance(gaussians, Gaussians):
+        raise ValueError(f"render expects prosplat.Gaussians, got {type(gaussians).__name__}")
+    lower = colour_opacities.to(gaussians.opacities)
+    if lower.shape != gaussians.opacities.shape:
+        raise ValueError(
+            f"colour_opacities must be [N] = {list(gaussians.opacities.shape)}, got "
+            f"{list(lower.shape)}"
+        )
+    weighted = Gaussians.trusted(
+        gaussians.means, gaussians.quats, gaussians.scales, lower, gaussians.sh, gaussians.views
+    )
+    if backend == "auto":
+        backend = "gsplat" if gsplat_available(gaussians.device) else "cpu-fused"
+    if backend not in ("cpu", "cpu-fused") or bool((lower > gaussians.opacities).any()):
+        return (
+            render(gaussians, camera, background, backend),
+            render(weighted, camera, background, backend, check=False),
+        )
+    if not isinstance(camera, Camera):
+        raise ValueError(f"render expects a prosplat.Camera, got {type(camera).__name__}")
+    gaussians.validate()
+    bg = _background(background, gaussians.means)
+    proj, order = _project_cpu(gaussians, camera, fused=backend == "cpu-fused")
+    plain = _composite_cpu(proj, order, proj.opacities, camera, bg, gaussians.device)
+    colour = _composite_cpu(proj, order, lower.cpu(), camera, bg, gaussians.device)
+    return plain, colour
+
+
+def _project_cpu(gaussians: Gaussians, camera: Camera, fused: bool):
+    """The projection on the CPU and the front-to-back order of the valid Gaussians."""
     from prosplat.render.fused import project_gaussians_fused
 
-    device = gaussians.device
-    if device.type != "cpu":
+    if gaussians.device.type != "cpu":
         gaussians = gaussians.to("cpu")
-        bg = bg.cpu()
     proj = (project_gaussians_fused if fused else project_gaussians)(gaussians, camera)
     idx = torch.nonzero(proj.valid).squeeze(1)
     order = idx[torch.argsort(proj.depths.detach()[idx], stable=True)]
+    return proj, order
+
+
+def _composite_cpu(proj, order, opacities: Tensor, camera: Camera, bg: Tensor, device):
+    """A projection composited with ``opacities [N]`` over ``bg``, back on ``device``."""
+    from prosplat.render.cpu import composite
+
+    bg = bg.cpu()
     feats = torch.cat([proj.colors, proj.depths[:, None]], dim=1)  # [N,4]
     out, trans = composite(
-        proj.means2d,
-        proj.conics,
-        proj.opacities,
-        feats,
-        proj.boxes,
-        order,
-        camera.width,
+        proj.means2d, proj.conics, opacities, feats, proj.boxes, order, camera.width,
         camera.height,
-    )
+    )  # fmt: skip
     alpha = 1.0 - trans
     rgb = out[:3] + trans[None] * bg[:, None, None]
     depth = torch.where(alpha > 0, out[3] / alpha.clamp_min(1e-6), torch.zeros_like(alpha))
@@ -108,3 +149,10 @@ def _render_cpu(
     if device.type != "cpu":
         result = RenderOutput(*(x.to(device) for x in (rgb, alpha, depth, proj.valid)))
     return result
+
+
+def _render_cpu(
+    gaussians: Gaussians, camera: Camera, bg: Tensor, fused: bool = False
+) -> RenderOutput:
+    proj, order = _project_cpu(gaussians, camera, fused)
+    return _composite_cpu(proj, order, proj.opacities, camera, bg, gaussians.device)
