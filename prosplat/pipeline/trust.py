@@ -19,7 +19,7 @@ at a small size (:data:`TRUST_HEIGHT`), where its cost is that of V small recons
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -94,6 +94,7 @@ def leave_one_out(
     *,
     height: int = TRUST_HEIGHT,
     max_views: int = 4,
+    progress: Callable[[int, int], None] | None = None,
 ) -> TrustEstimate:
     """Each of up to ``max_views`` inputs (evenly spread over ``images [V,3,H,W]``) left out:
     ``model`` (a :class:`~prosplat.ProSplat`) reconstructs the rest at ``height`` px and
@@ -102,7 +103,8 @@ def leave_one_out(
     remaining input (MORI's pick, :func:`prosplat.improve.mori.select_reference`).
 
     Needs at least 3 inputs (2 remain to reconstruct from); with fewer the estimate is empty
-    (``margin`` NaN, never a warning)."""
+    (``margin`` NaN, never a warning). ``progress(k, count)`` is called before the k-th
+    left-out input (a caller's progress bar; it may raise to cancel)."""
     cameras = list(cameras)
     v = len(cameras)
     if images.ndim != 4 or images.shape[0] != v:
@@ -117,7 +119,9 @@ def leave_one_out(
     count = min(max_views, v)
     left = tuple(sorted({round(k * (v - 1) / max(count - 1, 1)) for k in range(count)}))
     model_scores, paste_scores = [], []
-    for i in left:
+    for k, i in enumerate(left):
+        if progress is not None:
+            progress(k, len(left))
         rest = [j for j in range(v) if j != i]
         rest_cams = [cameras[j] for j in rest]
         rec = model.reconstruct(images[rest], rest_cams, near, far)

@@ -218,9 +218,12 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     if params.get("trust_check", True) and len(cameras) >= 3:
         from prosplat.pipeline.trust import leave_one_out
 
-        progress(0.5, "leave-one-out: can the views beat the nearest photo?")
+        def step(k: int, count: int) -> None:  # Esc stops between left-out inputs
+            progress(0.5 + 0.25 * k / count,
+                     f"leave-one-out {k + 1}/{count}: can the views beat the nearest photo?")  # fmt: skip
+
         trust = leave_one_out(model, images.to(device), cameras, params.get("near"),
-                              params.get("far"))  # fmt: skip
+                              params.get("far"), progress=step)  # fmt: skip
     t_refine = 0.0
     if refining:
         depths = rec.depths_for(images)

@@ -32,7 +32,11 @@ def test_a_wide_arc_gets_no_warning_and_a_tight_cluster_does(shipped_generator):
     assert wide.views == (0, 1, 2, 3) and len(wide.model_psnr) == 4
     assert not wide.loses_to_paste and wide.message() is None, wide
     assert "no warning" in trust_line(wide)
-    tight = leave_one_out(shipped_generator, *views(1.0))
+    calls = []
+    tight = leave_one_out(
+        shipped_generator, *views(1.0), progress=lambda k, n: calls.append((k, n))
+    )
+    assert calls == [(0, 4), (1, 4), (2, 4), (3, 4)]
     assert tight.loses_to_paste, tight
     assert "below simply showing the nearest photo" in tight.message()
     assert f"{-tight.margin:.1f} dB" in trust_line(tight)
