@@ -82,11 +82,9 @@ def paste_prediction(
     images: Tensor, cameras: Sequence[Camera], camera: Camera
 ) -> tuple[Tensor, int]:
     """MORI's reference input for ``camera``, resampled to its size, and its index."""
-    from prosplat.improve.mori import select_reference
-    from prosplat.pipeline.enhance import reference_at
+    from prosplat.pipeline.enhance import pasted_view
 
-    ref = select_reference(camera, list(cameras))
-    image, _ = reference_at(images[ref], cameras[ref], camera.width, camera.height)
+    image, ref = pasted_view(camera, images, cameras)
     return image.clamp(0, 1), ref
 
 

@@ -329,6 +329,16 @@ def reference_at(image: Tensor, camera: Camera, width: int, height: int) -> tupl
     return resized, camera.resized(width, height)
 
 
+def pasted_view(camera: Camera, images: Tensor, cameras: Sequence[Camera]) -> tuple[Tensor, int]:
+    """The input MORI picks for ``camera`` among ``cameras`` (the paper's score, the
+    reference stage 2 would borrow from), its image of ``images [N,3,H,W]`` resampled to
+    ``camera``'s size: the simplest answer every view is measured against. Returns
+    (image [3,H,W], input index)."""
+    j = select_reference(camera, list(cameras), method="paper")
+    image, _ = reference_at(images[j], cameras[j], camera.width, camera.height)
+    return image, j
+
+
 def enhance(
     improver,
     raw: Tensor,

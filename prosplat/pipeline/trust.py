@@ -27,9 +27,8 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.data.scene import resize_views
-from prosplat.improve.mori import select_reference
 from prosplat.metrics import psnr
-from prosplat.pipeline.enhance import reference_at
+from prosplat.pipeline.enhance import pasted_view
 
 __all__ = ["TRUST_HEIGHT", "TrustEstimate", "leave_one_out"]
 
@@ -100,7 +99,7 @@ def leave_one_out(
     ``model`` (a :class:`~prosplat.ProSplat`) reconstructs the rest at ``height`` px and
     renders the left-out camera as the product shows it (enhanced when it has a stage-2
     model, holes filled), scored by PSNR against the photo beside the paste of the nearest
-    remaining input (MORI's pick, :func:`prosplat.improve.mori.select_reference`).
+    remaining input (MORI's pick, :func:`prosplat.pipeline.enhance.pasted_view`).
 
     Needs at least 3 inputs (2 remain to reconstruct from); with fewer the estimate is empty
     (``margin`` NaN, never a warning). ``progress(k, count)`` is called before the k-th
@@ -135,7 +134,6 @@ def leave_one_out(
         )
         truth = images[i]
         model_scores.append(float(psnr(view.image.clamp(0, 1), truth)))
-        j = select_reference(cameras[i], rest_cams)
-        pasted, _ = reference_at(images[rest[j]], rest_cams[j], truth.shape[-1], truth.shape[-2])
+        pasted, _ = pasted_view(cameras[i], images[rest], rest_cams)
         paste_scores.append(float(psnr(pasted.clamp(0, 1), truth)))
     return TrustEstimate(left, tuple(model_scores), tuple(paste_scores))

@@ -195,11 +195,9 @@ def flat_image(images: Tensor, height: int, width: int) -> Tensor:
 def paste_image(camera: Camera, inputs: SceneInputs) -> tuple[Tensor, int]:
     """The input view MORI picks for ``camera`` (the paper's score, the same choice stage 2
     makes), resampled to the target's size; returns (image [3,H,W], input index)."""
-    from prosplat.pipeline.enhance import reference_at
+    from prosplat.pipeline.enhance import pasted_view
 
-    j = select_reference(camera, inputs.cameras, method="paper")
-    image, _ = reference_at(inputs.images[j], inputs.cameras[j], camera.width, camera.height)
-    return image, j
+    return pasted_view(camera, inputs.images, inputs.cameras)
 
 
 @register("flat")
