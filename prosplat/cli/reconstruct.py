@@ -642,11 +642,9 @@ def trust_line(t: TrustEstimate) -> str:
     wins."""
     if not t.views:
         return "leave-one-out: fewer than 3 inputs, no estimate"
-    model_db = sum(t.model_psnr) / len(t.views)
-    paste_db = sum(t.paste_psnr) / len(t.views)
     head = (
-        f"leave-one-out over {len(t.views)} inputs: re-rendered {model_db:.2f} dB, "
-        f"nearest photo pasted {paste_db:.2f} dB"
+        f"leave-one-out over {len(t.views)} inputs: re-rendered {t.model_db:.2f} dB, "
+        f"nearest photo pasted {t.paste_db:.2f} dB"
     )
     return f"{head}; {t.message()}" if t.loses_to_paste else f"{head}: no warning"
 

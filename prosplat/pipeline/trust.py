@@ -52,11 +52,19 @@ class TrustEstimate:
     paste_psnr: tuple[float, ...]
 
     @property
+    def model_db(self) -> float:
+        """Mean PSNR of the re-renders, dB (NaN without an estimate)."""
+        return sum(self.model_psnr) / len(self.views) if self.views else math.nan
+
+    @property
+    def paste_db(self) -> float:
+        """Mean PSNR of the pasted neighbours, dB (NaN without an estimate)."""
+        return sum(self.paste_psnr) / len(self.views) if self.views else math.nan
+
+    @property
     def margin(self) -> float:
         """Mean PSNR of the render less the paste's, dB (negative: the paste wins)."""
-        if not self.views:
-            return math.nan
-        return sum(m - p for m, p in zip(self.model_psnr, self.paste_psnr)) / len(self.views)
+        return self.model_db - self.paste_db
 
     @property
     def loses_to_paste(self) -> bool:
