@@ -350,6 +350,7 @@ def enhance(
     alpha: Tensor | None = None,
     warp: Tensor | None = None,
     carry: str = "filled",
+    filled: Tensor | None = None,
 ) -> Tensor:
     """Run ``improver`` on one render ``raw [3,H,W]`` with its reference; returns [3,H,W].
 
@@ -362,6 +363,8 @@ def enhance(
     ``warp [4,H,W]`` the reference warped into the view and its validity
     (:func:`prosplat.improve.warp.reference_warp`), for models with ``config.warp_input``.
     ``dtype=torch.bfloat16`` runs under CPU/GPU autocast (the output is float32 again).
+    ``filled [3,H,W]``: ``raw`` with its holes filled, when the caller has made it already
+    (:func:`render_view` with ``fill_holes``); else ``carry="filled"`` makes it here.
     """
     if warp is None and improver.config.warp_input:
         raise ValueError(
@@ -388,7 +391,7 @@ def enhance(
         base, small_base = raw, small
         if carry == "filled" and alpha is not None:
             a = alpha.to(raw)
-            base = raw + (1 - a) * fill_colour(raw, a)  # [3,H,W]
+            base = raw + (1 - a) * fill_colour(raw, a) if filled is None else filled  # [3,H,W]
             small_base = F.interpolate(
                 base[None], size=(hs, ws), mode="bilinear", align_corners=False, antialias=True
             )[0]
@@ -533,6 +536,7 @@ def render_view(
             out.alpha,
             warp,
             options.carry,
+            None if fill is None else shown,  # the fill render_view made already
         ).to(out.rgb.device)
     t3 = time.perf_counter()
     timings.update(mori_ms=1e3 * (t2 - t1), enhance_ms=1e3 * (t3 - t2))

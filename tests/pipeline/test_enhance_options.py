@@ -12,6 +12,7 @@ from prosplat import ProSplat
 from prosplat.eval.demo_scene import demo_scene, orbit_cameras
 from prosplat.improve.model import ImproveModel
 from prosplat.pipeline.enhance import EnhanceOptions, enhance, guard_reason
+from prosplat.render.hole_fill import fill_colour
 
 SMALL = TINY_TEST.with_(working_size=32)  # the other stage-2 tests' small model
 
@@ -60,6 +61,11 @@ def test_a_dotted_lattice_is_not_carried_up():
         old = enhance(model, raw, cams[0], ref, cams[1], alpha=alpha, carry="raw")
         new = enhance(model, raw, cams[0], ref, cams[1], alpha=alpha)
     torch.testing.assert_close(old, raw, atol=1e-5, rtol=0)  # the lattice, untouched
+    with torch.no_grad():  # a caller's filled render (render_view's) is the one made here
+        given = raw + (1 - alpha) * fill_colour(raw, alpha)
+        assert torch.equal(
+            enhance(model, raw, cams[0], ref, cams[1], alpha=alpha, filled=given), new
+        )
     assert float(old.std(dim=(1, 2)).mean()) > 0.2
     assert float(new.std(dim=(1, 2)).mean()) < 0.01  # even
     torch.testing.assert_close(new.mean(dim=(1, 2)), raw.mean(dim=(1, 2)), atol=0.01, rtol=0)
