@@ -705,3 +705,25 @@ def test_no_depth_sweep_reaches_the_model_and_the_command_line():
     args = parser.parse_args(["--data", "d", "--no-depth-sweep"])
     assert "--no-depth-sweep" in command(args).split()
     assert "--no-depth-sweep" not in command(parser.parse_args(["--data", "d"])).split()
+
+
+def test_carry_rows_are_the_enhanced_rows_at_the_working_size_and_differ_above(data):
+    """The opt-in ``carry`` rows (stage 2's change carried onto the render on black, the
+    way before) pair with the enhanced rows: the same image at the model's working size or
+    below, another one above it; not among the defaults."""
+    scene = load_scene(data / "tabletop_000001")
+    idx = pick_inputs(scene, 3)
+    inp = SceneInputs(scene.images[idx], [scene.cameras[i] for i in idx], None, 0.5, 20.0)
+    ctx = LadderContext({"generator_size": 32})
+    rungs = {r.name: r for r in build_rungs(["enhanced", "fill", "carry"], ctx)}
+    assert {"enhanced ⇡raw", "enhanced filled ⇡raw"} <= set(rungs)
+    g = rungs["enhanced"].reconstruct(inp)
+    cam = scene.cameras[scene.target_indices[0]]
+    for ours, old in (("enhanced", "enhanced ⇡raw"), ("enhanced filled", "enhanced filled ⇡raw")):
+        small = [rungs[n].view(g, cam, inp).image for n in (ours, old)]
+        assert torch.equal(*small), ours
+        working = ctx.model.improver.config.working_size
+        big_cam = cam.resized(2 * working, 2 * working)
+        big = [rungs[n].view(g, big_cam, inp).image for n in (ours, old)]
+        assert not torch.equal(*big), ours
+    assert "carry" not in DEFAULT_ROWS

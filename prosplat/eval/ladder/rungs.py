@@ -294,9 +294,9 @@ def generator_rungs(ctx: LadderContext) -> list[Rung]:
     return [Rung("generator", _generator_gaussians(ctx), splat_view, "generator", depth=True)]
 
 
-def _enhanced_view(improver, dtype) -> Callable[[Any, Camera, SceneInputs], View]:
+def _enhanced_view(improver, dtype, options=None) -> Callable[[Any, Camera, SceneInputs], View]:
     def view(g, cam: Camera, inp: SceneInputs) -> View:
-        return splat_view(g, cam, inp, improver, dtype)
+        return splat_view(g, cam, inp, improver, dtype, options=options)
 
     return view
 
@@ -315,9 +315,11 @@ def enhanced_rungs(ctx: LadderContext) -> list[Rung]:
     ]
 
 
-def _filled_view(improver=None, dtype=None) -> Callable[[Any, Camera, SceneInputs], View]:
+def _filled_view(
+    improver=None, dtype=None, options=None
+) -> Callable[[Any, Camera, SceneInputs], View]:
     def view(g, cam: Camera, inp: SceneInputs) -> View:
-        return splat_view(g, cam, inp, improver, dtype, fill_holes=True)
+        return splat_view(g, cam, inp, improver, dtype, fill_holes=True, options=options)
 
     return view
 
@@ -335,19 +337,15 @@ def carry_rungs(ctx: LadderContext) -> list[Rung]:
     if not improvers:
         ctx.improver("enhanced ⇡raw")  # raises SkipRung with the reason
     recon, options = _generator_gaussians(ctx), EnhanceOptions(carry="raw")
-
-    def view(imp, fill: bool):
-        def run(g, cam: Camera, inp: SceneInputs) -> View:
-            return splat_view(g, cam, inp, imp, dtype, fill_holes=fill, options=options)
-
-        return run
-
-    return [
-        Rung(f"enhanced{filled} ⇡raw{suffix}", recon, view(imp, bool(filled)), "generator",
-             depth=True)
-        for suffix, imp in improvers.items()
-        for filled in ("", " filled")
-    ]  # fmt: skip
+    rungs = []
+    for suffix, imp in improvers.items():
+        rungs += [
+            Rung(f"enhanced ⇡raw{suffix}", recon, _enhanced_view(imp, dtype, options),
+                 "generator", depth=True),
+            Rung(f"enhanced filled ⇡raw{suffix}", recon, _filled_view(imp, dtype, options),
+                 "generator", depth=True),
+        ]  # fmt: skip
+    return rungs
 
 
 @register("fill")
