@@ -48,6 +48,7 @@ import torch
 
 from prosplat.cli import photo_input
 from prosplat.core.paths import staged_folder
+from prosplat.geometry.depth_edges import EDGE_CHOICES
 from prosplat.pipeline.distill import DEFAULT_DISTILL_STEPS
 from prosplat.pipeline.enhance import OTHER_VIEWS_OPACITY
 from prosplat.pipeline.trust import TrustEstimate, leave_one_out
@@ -137,7 +138,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--depth-edges",
-        choices=("drop", "snap", "off"),
+        choices=EDGE_CHOICES,
         default=None,
         help="the Gaussians of pixels inside a depth ramp between two surfaces (the curtains "
         "a generator's smooth depth hangs between a wall and what lies behind it) are dropped, "
@@ -423,9 +424,9 @@ def load_model(args: argparse.Namespace):
     )
     edges = getattr(args, "depth_edges", None)
     if edges is not None:
-        from prosplat.geometry.depth_edges import EdgeOptions
+        from prosplat.geometry.depth_edges import edge_options
 
-        model.depth_edges = None if edges == "off" else EdgeOptions(remedy=edges)
+        model.depth_edges = edge_options(edges)
     return model
 
 

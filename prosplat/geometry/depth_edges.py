@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["EdgeOptions", "depth_edges", "resolve_depth_edges"]
+__all__ = ["EDGE_CHOICES", "EdgeOptions", "depth_edges", "edge_options", "resolve_depth_edges"]
 
 
 @dataclass(frozen=True)
@@ -78,6 +78,18 @@ class EdgeOptions:
             raise ValueError(f"EdgeOptions.grow must be 0 or more, got {self.grow}")
         if not (self.reach > 0 and math.isfinite(self.reach)):
             raise ValueError(f"EdgeOptions.reach must be positive, got {self.reach}")
+
+
+#: the command line's ``--depth-edges`` values (:func:`edge_options`)
+EDGE_CHOICES = ("drop", "snap", "off")
+
+
+def edge_options(choice: str) -> EdgeOptions | None:
+    """``--depth-edges CHOICE`` as ``ProSplat.depth_edges``: "off" is None, "drop" and
+    "snap" the default options with that remedy."""
+    if choice not in EDGE_CHOICES:
+        raise ValueError(f"--depth-edges must be one of {', '.join(EDGE_CHOICES)}, got {choice!r}")
+    return None if choice == "off" else EdgeOptions(remedy=choice)
 
 
 def _pixels(matching_px: float, scale: float) -> int:

@@ -71,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the generator's depth as it predicts it, without the local plane "
                         "sweep that moves it to where the inputs match (prosplat.pipeline.depth_sweep; "
                         "on by default for prosplat generators)")  # fmt: skip
-    parser.add_argument("--depth-edges", choices=("off", "drop", "snap"), default=None,
+    parser.add_argument("--depth-edges", choices=("drop", "snap", "off"), default=None,
                         help="the Gaussians of pixels inside a depth ramp between two surfaces "
                         "(a curtain) are dropped, snapped onto the nearer surface, or left "
                         "(prosplat.geometry.depth_edges; default: the model's own)")  # fmt: skip

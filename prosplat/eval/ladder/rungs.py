@@ -37,7 +37,7 @@ from torch import Tensor
 from prosplat.core.camera import Camera
 from prosplat.eval.ladder.geometry import true_depth_gaussians
 from prosplat.geometry.consistency import DEFAULT_TAU, cross_view_check
-from prosplat.geometry.depth_edges import EdgeOptions
+from prosplat.geometry.depth_edges import edge_options
 from prosplat.improve.mori import select_reference
 from prosplat.improve.warp import reference_warp, warp_for
 from prosplat.pipeline.enhance import MAX_SPLAT_RADIUS, OTHER_VIEWS_OPACITY
@@ -116,7 +116,7 @@ class LadderContext:
             )
             self._model.full_res_gaussians = not self.options.get("low_res_gaussians")
             if (edges := self.options.get("depth_edges")) is not None:
-                self._model.depth_edges = None if edges == "off" else EdgeOptions(remedy=edges)
+                self._model.depth_edges = edge_options(edges)
             if (scale := self.options.get("gaussian_scale")) is not None:
                 self._model.max_gaussian_scale = float(scale)
         return self._model
