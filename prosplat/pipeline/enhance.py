@@ -97,17 +97,13 @@ def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) ->
     (BENCHMARKS "Oversized splats"). Drawn, it could only blur; left out, the fill or stage 2
     paints the place from what surrounds it."""
     from prosplat.render.fused import project_gaussians_fused
-    from prosplat.render.projection import project_gaussians
+    from prosplat.render.projection import project_gaussians, wider_than
 
     _check_max_radius(max_radius, "max_radius")
     g = gaussians.detach()
     # the fused kernel is the same float64 arithmetic at ~2.4x the speed (CPU only)
     p = (project_gaussians_fused if g.device.type == "cpu" else project_gaussians)(g, camera)
-    a, b, c = p.conics.to(torch.float64).unbind(-1)  # the inverse 2D covariance [N] each
-    # its smallest eigenvalue is 1 / (the widest standard deviation)²
-    low = (a + c) / 2 - torch.sqrt(((a - c) / 2) ** 2 + b * b)  # [N]
-    limit = max_radius * min(camera.width, camera.height)
-    return p.valid & (low * limit * limit < 1)
+    return wider_than(p, max_radius * min(camera.width, camera.height))
 
 
 def _check_other_views_opacity(value) -> None:
@@ -149,6 +145,7 @@ def render_favouring(
     camera: Camera,
     weights: Tensor,
     background: Tensor | None = None,
+    max_radius: float | None = None,
 ) -> RenderOutput:
     """``render(gaussians, camera)`` with the colour weighing the input views' Gaussians
     (``gaussians.views``) by ``weights [V]`` (each view's Gaussians enter the colour at that
@@ -156,7 +153,8 @@ def render_favouring(
     plain render's, so the coverage (and what a fill or stage 2 treats as a hole) does not
     change. Where only views of weight 0 draw, or the weighted render draws almost nothing
     (alpha <= 1e-4), the colour is the plain render's. One projection, two composites
-    (:func:`prosplat.render.render_pair`)."""
+    (:func:`prosplat.render.render_pair`), which also leaves out the Gaussians wider than
+    ``max_radius`` (None: none left out)."""
     if gaussians.views is None:
         raise ValueError("render_favouring needs Gaussians with views (the input view of each)")
     weights = torch.as_tensor(weights, dtype=torch.float64)
@@ -166,7 +164,9 @@ def render_favouring(
     if len(g) and int(g.views.max()) >= len(weights):
         raise ValueError(f"Gaussians of view {int(g.views.max())} but {len(weights)} weights")
     w = weights.to(g.opacities)[g.views]  # [N]
-    out, out_w = render_pair(g, camera, g.opacities * w, background=background)
+    out, out_w = render_pair(
+        g, camera, g.opacities * w, background=background, max_radius=max_radius
+    )
     bg = torch.zeros(3) if background is None else torch.as_tensor(background)
     bg = bg.to(out.rgb)[:, None, None]  # [3,1,1]
     a, a_w = out.alpha[None], out_w.alpha[None]  # [1,H,W]
@@ -211,17 +211,19 @@ def render_as_viewed(
     cameras: Sequence[Camera] | None,
     other_views_opacity: float = OTHER_VIEWS_OPACITY,
     background: Tensor | None = None,
+    max_radius: float | None = None,
 ) -> RenderOutput:
     """The render every view starts from: :func:`render_favouring` of the input MORI picks
     among ``cameras``, the others weighed by :func:`view_weights`, when the Gaussians know
     their views and ``other_views_opacity`` < 1, else the plain ``render``.
     :func:`render_view` and stage-2 curation both draw this, so stage 2 learns from the
-    renders it is given."""
+    renders it is given. ``max_radius``: the Gaussians :func:`oversized_splats` would flag
+    are left out by the render's own projection (None: all drawn)."""
     favoured = _favoured_view(gaussians, camera, cameras, other_views_opacity)
     if favoured is None:
-        return render(gaussians, camera, background=background)
+        return render(gaussians, camera, background=background, max_radius=max_radius)
     weights = view_weights(camera, cameras, favoured, other_views_opacity)
-    return render_favouring(gaussians, camera, weights, background)
+    return render_favouring(gaussians, camera, weights, background, max_radius)
 
 
 @dataclass
@@ -492,17 +494,22 @@ def render_view(
         _check_max_radius(max_splat_radius, "max_splat_radius")
     as_given = gaussians
     painted = fill_holes or improver is not None  # the holes the cap leaves are painted
-    gaussians = painted_view_gaussians(
-        gaussians, camera, max_splat_radius if painted else None, splat_scale
-    )
+    cap = max_splat_radius if painted else None
     if fill_holes and background is not None:
         raise ValueError(
             "fill_holes fills the holes of a render on black; pass a background or "
             "fill_holes=True, not both"
         )
+    # Gaussians at their own size are judged by the projection that draws them (one
+    # projection, not two); scaled ones are judged before the scaling, on a subset
+    drawn_cap = cap if splat_scale == 1 else None
+    if splat_scale != 1:
+        gaussians = painted_view_gaussians(gaussians, camera, cap, splat_scale)
     t0 = time.perf_counter()
     with torch.no_grad():
-        out = render_as_viewed(gaussians, camera, cameras, other_views_opacity, background)
+        out = render_as_viewed(
+            gaussians, camera, cameras, other_views_opacity, background, drawn_cap
+        )
     t1 = time.perf_counter()
     timings = {"render_ms": 1e3 * (t1 - t0)}
     fill = fill_colour(out.rgb, out.alpha) if fill_holes else None  # [3,H,W]
@@ -522,9 +529,10 @@ def render_view(
     t2 = time.perf_counter()
     with torch.no_grad():
         # [4,H,W] or None; timed as part of the enhancement
-        warp = warp_for(
-            improver, gaussians, camera, out.depth, out.alpha, images[ref], cameras[ref]
-        )
+        warped = gaussians  # the Gaussians the view drew, for the warp's reference depth
+        if drawn_cap is not None and improver.config.warp_input:
+            warped = painted_view_gaussians(gaussians, camera, cap)
+        warp = warp_for(improver, warped, camera, out.depth, out.alpha, images[ref], cameras[ref])
         image = enhance(
             improver,
             out.rgb,
@@ -541,7 +549,7 @@ def render_view(
     t3 = time.perf_counter()
     timings.update(mori_ms=1e3 * (t2 - t1), enhance_ms=1e3 * (t3 - t2))
     reason = guard_reason(out.rgb, image, out.alpha, options) if options.guard else None
-    if reason is not None and fill is None and gaussians is not as_given:
+    if reason is not None and fill is None and (cap is not None or gaussians is not as_given):
         with torch.no_grad():  # a guarded view on black: every Gaussian at its own size
             image = render_as_viewed(as_given, camera, cameras, other_views_opacity, background).rgb
     elif reason is not None:

@@ -8,13 +8,16 @@ rasterizer semantics of DESIGN.md; the pure-torch brute-force twin that defines 
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import torch
 from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
 from prosplat.render.output import RenderOutput
-from prosplat.render.projection import ProjectedGaussians, project_gaussians
+from prosplat.render.projection import ProjectedGaussians, project_gaussians, wider_than
 
 __all__ = ["RenderOutput", "render", "render_pair", "project_gaussians", "ProjectedGaussians"]
 
@@ -53,6 +56,7 @@ def render(
     backend: str = "auto",
     *,
     check: bool = True,
+    max_radius: float | None = None,
 ) -> RenderOutput:
     """Render ``gaussians`` from ``camera``; differentiable w.r.t. every Gaussian parameter.
 
@@ -66,6 +70,11 @@ def render(
         check: validate the Gaussians first (:meth:`Gaussians.validate`). False only in
             loops whose Gaussians are valid by construction and that watch their own loss
             for NaN (refinement): the check reads every value, every render.
+        max_radius: Gaussians this camera would draw with a standard deviation wider than
+            this fraction of the view's shorter side are left out, as if not given
+            (``visible`` False; :func:`prosplat.render.projection.wider_than`). On the CPU
+            the projection that draws them judges them, so leaving them out costs nothing;
+            None draws them all.
     """
     if not isinstance(gaussians, Gaussians):
         raise ValueError(f"render expects prosplat.Gaussians, got {type(gaussians).__name__}")
@@ -75,13 +84,32 @@ def render(
         gaussians.validate()
     bg = _background(background, gaussians.means)
     backend = _chosen_backend(backend, gaussians.device)
+    if backend not in ("cpu", "cpu-fused", "gsplat"):
+        raise ValueError(f"unknown backend {backend!r}; use 'auto', 'cpu', 'cpu-fused' or 'gsplat'")
     if backend == "gsplat":
         from prosplat.render.gsplat_backend import render_gsplat
 
-        return render_gsplat(gaussians, camera, bg)
-    if backend not in ("cpu", "cpu-fused"):
-        raise ValueError(f"unknown backend {backend!r}; use 'auto', 'cpu', 'cpu-fused' or 'gsplat'")
-    return _render_cpu(gaussians, camera, bg, fused=backend == "cpu-fused")
+        if max_radius is None:
+            return render_gsplat(gaussians, camera, bg)
+        keep = ~_too_wide(gaussians, camera, max_radius)  # [N]
+        return _scattered(render_gsplat(gaussians[keep], camera, bg), keep)
+    proj, order = _project_cpu(gaussians, camera, backend == "cpu-fused", max_radius)
+    return _composite_cpu(proj, order, proj.opacities, camera, bg, gaussians.device)
+
+
+def _too_wide(gaussians: Gaussians, camera: Camera, max_radius: float) -> Tensor:
+    """[N] bool: :func:`wider_than` ``max_radius`` of the view's shorter side, through the
+    torch projection (the backends without one of their own to share)."""
+    _check_max_radius(max_radius)
+    proj = project_gaussians(gaussians, camera)
+    return wider_than(proj, max_radius * min(camera.width, camera.height))
+
+
+def _scattered(out: RenderOutput, keep: Tensor) -> RenderOutput:
+    """A render of ``gaussians[keep]`` with ``visible`` back over all N Gaussians."""
+    visible = torch.zeros_like(keep)
+    visible[keep] = out.visible
+    return RenderOutput(rgb=out.rgb, alpha=out.alpha, depth=out.depth, visible=visible)
 
 
 def render_pair(
@@ -90,6 +118,8 @@ def render_pair(
     colour_opacities: Tensor,
     background: Tensor | None = None,
     backend: str = "auto",
+    *,
+    max_radius: float | None = None,
 ) -> tuple[RenderOutput, RenderOutput]:
     """``render(gaussians, camera)`` and the render of the same Gaussians with opacities
     ``colour_opacities [N]`` (each at most its Gaussian's opacity), as two
@@ -98,7 +128,8 @@ def render_pair(
     projection is most of a render's time at artist sizes: here it runs once and only the
     compositing twice. The same images as two :func:`render` calls: the pixel boxes of the
     lower opacities lie inside those of the higher ones, and samples under 1/255 are skipped
-    either way. Opacities above the Gaussians' own (or another backend) take two renders."""
+    either way. Opacities above the Gaussians' own (or another backend) take two renders.
+    ``max_radius``: as in :func:`render`, the widest Gaussians left out of both."""
     if not isinstance(gaussians, Gaussians):
         raise ValueError(f"render expects prosplat.Gaussians, got {type(gaussians).__name__}")
     lower = colour_opacities.to(gaussians.opacities)
@@ -113,26 +144,33 @@ def render_pair(
     backend = _chosen_backend(backend, gaussians.device)
     if backend not in ("cpu", "cpu-fused") or bool((lower > gaussians.opacities).any()):
         return (
-            render(gaussians, camera, background, backend),
-            render(weighted, camera, background, backend, check=False),
+            render(gaussians, camera, background, backend, max_radius=max_radius),
+            render(weighted, camera, background, backend, check=False, max_radius=max_radius),
         )
     if not isinstance(camera, Camera):
         raise ValueError(f"render expects a prosplat.Camera, got {type(camera).__name__}")
     gaussians.validate()
     bg = _background(background, gaussians.means)
-    proj, order = _project_cpu(gaussians, camera, fused=backend == "cpu-fused")
+    proj, order = _project_cpu(gaussians, camera, backend == "cpu-fused", max_radius)
     plain = _composite_cpu(proj, order, proj.opacities, camera, bg, gaussians.device)
     colour = _composite_cpu(proj, order, lower.cpu(), camera, bg, gaussians.device)
     return plain, colour
 
 
-def _project_cpu(gaussians: Gaussians, camera: Camera, fused: bool):
-    """The projection on the CPU and the front-to-back order of the valid Gaussians."""
+def _project_cpu(
+    gaussians: Gaussians, camera: Camera, fused: bool, max_radius: float | None = None
+):
+    """The projection on the CPU and the front-to-back order of the Gaussians it draws: the
+    valid ones, less those wider than ``max_radius`` (whose ``valid`` turns False)."""
     from prosplat.render.fused import project_gaussians_fused
 
     if gaussians.device.type != "cpu":
         gaussians = gaussians.to("cpu")
     proj = (project_gaussians_fused if fused else project_gaussians)(gaussians, camera)
+    if max_radius is not None:
+        _check_max_radius(max_radius)
+        wide = wider_than(proj, max_radius * min(camera.width, camera.height))  # [N]
+        proj = dataclasses.replace(proj, valid=proj.valid & ~wide)
     idx = torch.nonzero(proj.valid).squeeze(1)
     order = idx[torch.argsort(proj.depths.detach()[idx], stable=True)]
     return proj, order
@@ -157,8 +195,8 @@ def _composite_cpu(proj, order, opacities: Tensor, camera: Camera, bg: Tensor, d
     return result
 
 
-def _render_cpu(
-    gaussians: Gaussians, camera: Camera, bg: Tensor, fused: bool = False
-) -> RenderOutput:
-    proj, order = _project_cpu(gaussians, camera, fused)
-    return _composite_cpu(proj, order, proj.opacities, camera, bg, gaussians.device)
+def _check_max_radius(value) -> None:
+    if isinstance(value, bool) or not (
+        isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+    ):
+        raise ValueError(f"max_radius must be a finite number > 0 (or None), got {value!r}")

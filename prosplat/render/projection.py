@@ -53,6 +53,16 @@ class ProjectedGaussians:
     valid: Tensor
 
 
+def wider_than(proj: ProjectedGaussians, max_sd: float) -> Tensor:
+    """[N] bool: the drawn (``valid``) Gaussians whose screen footprint has a standard
+    deviation wider than ``max_sd`` pixels along its widest direction. The conic is the
+    inverse 2D covariance, so its smallest eigenvalue is 1 / (the widest sd)²; computed in
+    float64 whatever the projection's dtype."""
+    a, b, c = proj.conics.detach().to(torch.float64).unbind(-1)  # [N] each
+    low = (a + c) / 2 - torch.sqrt(((a - c) / 2) ** 2 + b * b)  # [N]
+    return proj.valid & (low * max_sd * max_sd < 1)
+
+
 def quat_to_rotmat(quats: Tensor) -> Tensor:
     """[N,4] (w,x,y,z), any non-zero length -> [N,3,3] rotation matrices."""
     rows = _rotation_entries(quats.T)
