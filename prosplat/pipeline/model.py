@@ -431,7 +431,8 @@ class ProSplat:
     ) -> tuple[Tensor, list[Camera]]:
         """The inputs as the generator should see them: resized (antialiased) to ``height``
         px when that is below their own height, the width keeping the aspect (a multiple of
-        32), with matching cameras; unchanged otherwise. ``height`` None: the model's
+        32), with matching cameras; unchanged otherwise, unless a side is not a multiple of 32
+        (the network's stride): then they go down to the multiple below. ``height`` None: the model's
         :attr:`trained_size`; 0: the inputs' own size.
 
         Why: a generator works best at the size it was trained at (``TRAINED_SIZE`` for the
@@ -442,10 +443,13 @@ class ProSplat:
         time and better (BENCHMARKS.md, "The pipeline now").
         """
         cameras = list(cameras)
+        h, w = images.shape[-2:]
         height = self.trained_size if height is None else height
-        if not height or height >= images.shape[-2]:
+        height = h if not height else min(int(height), h)
+        height = max(32, height - height % 32)  # the network's stride
+        if (height, resized_width(w, h, height)) == (h, w):
             return images, cameras
-        return resize_views(images, cameras, int(height))
+        return resize_views(images, cameras, height)
 
     def _generate(
         self, images: Tensor, cameras, near, far, height, grad: bool, depth_scale: bool

@@ -379,7 +379,8 @@ def test_eval_ladder_end_to_end(data, tmp_path, capsys):
 @pytest.mark.parametrize(
     "extra, message",
     [
-        (["--sizes", "48"], "multiples of 32"),
+        (["--sizes", "16"], "below 32 px"),
+        (["--sizes", "48", "--generator-size", "0"], "not multiples of 32"),
         (["--views", "7"], "outside 2-6"),
         (["--rows", "nope"], "unknown ladder rows"),
         (["--sizes", "128"], "cannot evaluate at 128 px"),
@@ -727,3 +728,19 @@ def test_carry_rows_are_the_enhanced_rows_at_the_working_size_and_differ_above(d
         big = [rungs[n].view(g, big_cam, inp).image for n in (ours, old)]
         assert not torch.equal(*big), ours
     assert "carry" not in DEFAULT_ROWS
+
+
+def test_ladder_evaluates_at_a_height_the_generator_cannot_run_at(data, tmp_path):
+    """``--sizes 48`` (as 540 for 960x540 scenes): the rows score 48-px views while the
+    generator runs at the multiple of 32 below (its stride), its Gaussians drawn at 48; its
+    depth is as right as at 64 px."""
+    out = tmp_path / "o"
+    argv = ["eval", "ladder", "--data", str(data), "--out", str(out), "--views", "3"]
+    with pytest.raises(SystemExit) as done:
+        main(argv + ["--sizes", "48", "64", "--rows", "generator"])
+    assert done.value.code == 0
+    scores = json.loads((out / "ladder.json").read_text())["scores"]
+    by_size = {n: [s for s in scores if s["size"] == n] for n in (48, 64)}
+    assert len(by_size[48]) == len(by_size[64]) == 4
+    rel = {n: sum(s["abs_rel"] for s in v) / 4 for n, v in by_size.items()}
+    assert rel[48] < 0.2 and abs(rel[48] - rel[64]) < 0.05

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from prosplat import Reconstruction, render
+from prosplat.data.scene import resize_views
 from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians
 from prosplat.geometry.budget import prune_pixel_aligned
 from prosplat.pipeline.refine import refine
@@ -120,3 +121,18 @@ def test_render_takes_a_reconstruction_and_knows_its_cameras(model, scene):
     assert torch.equal(again.image, given.image)
     with pytest.raises(TypeError, match="fill_hole"):
         model.render(rec, target, images, enhance=False, fill_hole=True)
+
+
+def test_inputs_off_the_networks_stride_run_at_the_multiple_of_32_below(model):
+    """72 x 100 inputs (neither side a multiple of 32) reconstruct, the generator at 64 x 96
+    with cameras to match, as the evaluation at 540 px of a 960 x 540 scene needs; the
+    depth is that of the same views resized by hand."""
+    truth = pixel_aligned_gaussians(orbit_cameras(6, 100, 72, arc_deg=50.0))
+    cams = orbit_cameras(4, 100, 72, arc_deg=40.0)
+    images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)  # [4,3,72,100]
+    rec = model.reconstruct(images, cams, generator_height=0)
+    assert rec.depths.shape == (4, 64, 96)
+    assert (rec.cameras[0].width, rec.cameras[0].height) == (96, 64)
+    small, small_cams = resize_views(images, cams, 64)
+    by_hand = model.reconstruct(small, small_cams, generator_height=0)
+    torch.testing.assert_close(rec.depths, by_hand.depths)

@@ -29,7 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", type=Path, nargs="+", required=True,
                         help="dataset folders (or scene folders) rendered by prosplat scenes render")  # fmt: skip
     parser.add_argument("--sizes", type=int, nargs="+", default=[64],
-                        help="evaluation heights in px, multiples of 32 (default 64)")  # fmt: skip
+                        help="evaluation heights in px, e.g. 540 for 960x540 scenes (default 64); the "
+                        "generator runs at its own size, so only --generator-size 0 needs "
+                        "multiples of 32")  # fmt: skip
     parser.add_argument("--views", type=int, nargs="+", default=[4],
                         help="input-view counts, 2-6 (default 4)")  # fmt: skip
     parser.add_argument("--rows", nargs="+", default=list(DEFAULT_ROWS),
@@ -62,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--generator", default=None, help="generator checkpoint (default shipped)")
     parser.add_argument("--generator-size", type=int, default=None,
                         help="run the generator at most this high (px, a multiple of 32; default: "
-                        "the size its weights were trained at, 64 for the shipped ones; 0: the "
+                        "the size its weights were trained at, 128 for the shipped ones; 0: the "
                         "evaluation size); its Gaussians render at the evaluation size")  # fmt: skip
     parser.add_argument("--low-res-gaussians", action="store_true",
                         help="the generator's Gaussians at the size it runs at, not at the "
@@ -96,8 +98,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> None:
-    if bad := [s for s in args.sizes if s < 32 or s % 32]:
-        raise ValueError(f"--sizes: {bad} are not multiples of 32 (the generator's stride)")
+    if bad := [s for s in args.sizes if s < 32]:
+        raise ValueError(f"--sizes: {bad} are below 32 px")
+    if args.generator_size == 0 and (bad := [s for s in args.sizes if s % 32]):
+        raise ValueError(
+            f"--sizes: {bad} are not multiples of 32 (the generator's stride), which "
+            "--generator-size 0 (the generator at the evaluation size) needs"
+        )
     if bad := [v for v in args.views if not 2 <= v <= 6]:
         raise ValueError(f"--views: {bad} outside 2-6 input views")
     if bad := [s for s in args.opt_steps if s < 1]:
