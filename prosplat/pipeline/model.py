@@ -31,6 +31,7 @@ from prosplat.data.scene import resize_views, resized_width
 from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
 from prosplat.geometry.budget import prune_pixel_aligned
 from prosplat.geometry.depth_edges import EdgeOptions
+from prosplat.geometry.merge import MergeOptions, merge_flat
 from prosplat.geometry.pixel_gaussians import slide_gaussians
 from prosplat.geometry.rig import near_far_from_cameras
 from prosplat.pipeline.depth_sweep import DepthSweepOptions, scale_search, snap_output
@@ -131,6 +132,15 @@ class ProSplat:
         self.depth_edges: EdgeOptions | None = None
         #: Gaussians come at most this many times the matching height (:meth:`_generate`)
         self.max_gaussian_scale: float = MAX_GAUSSIAN_SCALE
+        #: merge the budget's survivors in flat 2x2 pixel blocks into one Gaussian each
+        #: (:func:`prosplat.geometry.merge.merge_flat`), when the Gaussians were placed at
+        #: more than ``above_scale`` times the matching size (so at 512 px, not at 128);
+        #: None (the default): off. At 512 px on 6 test scenes ``MergeOptions()`` kept 35 %
+        #: fewer Gaussians (951K -> 620K) at level filled-view PSNR and LPIPS, but the views
+        #: draw no faster (merged Gaussians grow to keep their coverage) and the merge costs
+        #: about as much as the budget, so it is opt-in for memory, PLY size and the
+        #: viewport (BENCHMARKS.md, "Merging flat blocks")
+        self.merge_flat: MergeOptions | None = None
         self.improver = improver
         if improver is not None:
             improver.to(self.device).eval()
@@ -552,8 +562,25 @@ class ProSplat:
                 depths = depths * factor
         # the search is part of the depth sweep: its seconds count as the generator's
         generator_s = (t1 - t0) + (time.perf_counter() - t2)
-        timings = {"generator": generator_s, "prune": t2 - t1, "refine": 0.0}
+        prune_s = t2 - t1
+        if self.merge_flat is not None and self._placed_scale(gen_cameras, height) > (
+            self.merge_flat.above_scale
+        ):
+            t3 = time.perf_counter()
+            g, view_index, merged = merge_flat(g, keep, depths, gen_cameras, self.merge_flat)
+            stats = {**stats, "merged": merged["before"] - merged["after"], "kept": len(g)}
+            prune_s += time.perf_counter() - t3
+        timings = {"generator": generator_s, "prune": prune_s, "refine": 0.0}
         return Reconstruction(g, gen_cameras, depths, view_index, stats, None, timings)
+
+    def _placed_scale(self, gen_cameras: list[Camera], height: int | None) -> float:
+        """How many times the matching height (``height``; None: :attr:`trained_size`; 0:
+        the inputs') the Gaussians were placed at: ``gen_cameras``' height over it, 1 when
+        the generator matched at the Gaussians' own size."""
+        height = self.trained_size if height is None else height
+        if not height:
+            return 1.0
+        return max(1.0, gen_cameras[0].height / int(height))
 
     def _refined(
         self, rec: Reconstruction, images: Tensor, cameras, steps, seconds, options, seed,

@@ -27,8 +27,9 @@ class Reconstruction:
 
     Attributes:
         gaussians: the scene's Gaussians: the generator's (one per pixel of its depth maps,
-            view-major), pruned to the budget, then refined when asked; each one tagged with
-            its input view (``gaussians.views``).
+            view-major), pruned to the budget (and flat blocks merged, when
+            :attr:`~prosplat.ProSplat.merge_flat` is set), then refined when asked; each one
+            tagged with its input view (``gaussians.views``).
         cameras: the input cameras at the size the generator ran at, i.e. the size of
             ``depths`` (the inputs' own size when they were no larger than the generator's
             height, see :meth:`~prosplat.ProSplat.reconstruct`'s ``generator_height``).
@@ -38,11 +39,14 @@ class Reconstruction:
             term; equal to ``gaussians.views``).
         prune_stats: the budget's counts (:func:`prosplat.geometry.budget.prune_gaussians`):
             ``input``, ``transparent``, ``out_of_bounds``, ``duplicate``, ``over_budget``,
-            ``kept``; with ``budget="all"`` every Gaussian is counted as kept.
+            ``kept``; with ``budget="all"`` every Gaussian is counted as kept. With
+            :attr:`~prosplat.ProSplat.merge_flat` also ``merged``: the Gaussians flat 2x2
+            blocks merged away (:func:`prosplat.geometry.merge.merge_flat`), ``kept`` then
+            counting what is left.
         refine_stats: what refinement did (:class:`prosplat.pipeline.refine.RefineStats`), or
             None when the Gaussians were not refined.
         timings: seconds per part, keys :data:`TIMED_PARTS`: ``generator`` (with its depth
-            sweep), ``prune`` (the budget) and ``refine``.
+            sweep), ``prune`` (the budget, and the merge when on) and ``refine``.
     """
 
     gaussians: Gaussians

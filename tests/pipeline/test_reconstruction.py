@@ -13,6 +13,7 @@ from prosplat import Reconstruction, render
 from prosplat.data.scene import resize_views
 from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians
 from prosplat.geometry.budget import prune_pixel_aligned
+from prosplat.geometry.merge import MergeOptions, merge_flat
 from prosplat.pipeline.refine import refine
 
 NEAR, FAR = 1.0, 8.0
@@ -136,3 +137,38 @@ def test_inputs_off_the_networks_stride_run_at_the_multiple_of_32_below(model):
     small, small_cams = resize_views(images, cams, 64)
     by_hand = model.reconstruct(small, small_cams, generator_height=0)
     torch.testing.assert_close(rec.depths, by_hand.depths)
+
+
+def test_merge_flat_runs_after_the_budget_and_keeps_the_reconstruction_consistent(model, scene):
+    """With :attr:`ProSplat.merge_flat` the budget's survivors are merged in flat 2x2 blocks
+    (:func:`prosplat.geometry.merge.merge_flat` on its mask); the view index follows, the
+    stats count the merged-away Gaussians, refinement runs on the result; the options'
+    default ``above_scale`` (1) leaves it off where the Gaussians come at the matching size
+    (32-px inputs), so ``above_scale=0`` merges here."""
+    images, cams, _ = scene
+    options = MergeOptions(color_tol=0.1, depth_tol=0.05, above_scale=0)
+    full = model.reconstruct(images, cams, NEAR, FAR, budget="all", depth_scale=False)
+    plain = model.reconstruct(images, cams, NEAR, FAR, depth_scale=False)
+    g, keep, stats = prune_pixel_aligned(full.gaussians, full.depths, full.cameras)
+    assert plain.prune_stats == stats  # off by default
+    want, want_index, counts = merge_flat(g, keep, full.depths, full.cameras, options)
+    assert counts["blocks"] > 0
+    default = model.merge_flat
+    assert default is None  # opt-in
+    try:
+        model.merge_flat = options
+        rec = model.reconstruct(images, cams, NEAR, FAR, depth_scale=False)
+        assert_same_gaussians(rec.gaussians, want)
+        assert torch.equal(rec.view_index, want_index)
+        assert torch.equal(rec.gaussians.views, rec.view_index)
+        assert rec.prune_stats == {**stats, "merged": counts["before"] - counts["after"],
+                                   "kept": len(want)}  # fmt: skip
+        assert torch.equal(rec.depths, plain.depths) and rec.cameras == plain.cameras
+        refined = model.reconstruct(images, cams, NEAR, FAR, refine_steps=2)
+        assert refined.refine_stats.n_gaussians == len(refined.gaussians) < stats["kept"]
+        model.merge_flat = replace(options, above_scale=1.0)
+        off = model.reconstruct(images, cams, NEAR, FAR, depth_scale=False)
+        assert_same_gaussians(off.gaussians, plain.gaussians)
+        assert off.prune_stats == plain.prune_stats
+    finally:
+        model.merge_flat = default
