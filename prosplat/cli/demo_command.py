@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from prosplat.cli.config_args import add_config_arguments, config_from_args
-from prosplat.cli.demo import DemoConfig, run_demo
+from prosplat.cli.demo import DENOISE_CHOICES, DemoConfig, run_demo
 from prosplat.cli.options import add_refine_arguments
 
 
@@ -55,7 +55,10 @@ def add_parser(sub) -> None:
         "results, unless --overwrite).",
     )
     add_config_arguments(
-        demo, DemoConfig, skip=("refine_steps", "refine_seconds"), extra={"out": {"type": Path}}
+        demo,
+        DemoConfig,
+        skip=("refine_steps", "refine_seconds"),
+        extra={"out": {"type": Path}, "denoise": {"choices": DENOISE_CHOICES}},
     )
     add_refine_arguments(demo)
     demo.set_defaults(func=cmd_demo)

@@ -6,14 +6,18 @@
 - ``plot.png``: PSNR per view (generator vs enhanced) and speed against error.
 - ``report.md``: what ran, how long each step took, the table and the pictures.
 
-Panels are drawn with nearest-neighbour upsampling, so every model pixel stays visible.
+Panels are drawn with nearest-neighbour upsampling, so every model pixel stays visible: the
+pictures' resolution grows with the model's so that a panel never shows fewer pixels than its
+image has (256-px views come out at 1:1 or more).
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import math
 import statistics
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,7 +49,8 @@ class DemoResult:
     out: Path
     scene_folder: Path
     views: list[ViewResult]
-    timings: dict[str, float]  # seconds: blender, reconstruct, prune, views, total
+    # seconds: blender, reconstruct, prune, refine, views, ladder, pictures, total
+    timings: dict[str, float]
     gaussians: dict[str, int]  # budget stats (input, kept, ...)
     blender_view_s: float  # Cycles seconds per rendered view (median)
     settings: dict
@@ -87,15 +92,29 @@ def _draw_row(axes, v: ViewResult, titles: list[str]) -> None:
         ax.set_yticks([])
 
 
+def _save(fig, axes, path: Path, image_width: int) -> None:
+    """Lay ``fig`` out and save it at the resolution (at least 100 dpi) where its narrowest
+    panel among ``axes`` is at least ``image_width`` pixels wide: the panels are
+    upsampled, never downsampled (nearest-neighbour downsampling would drop pixels)."""
+    fig.tight_layout()
+    fw, fh = fig.get_size_inches()
+    # a square image's panel: the axes' box shrunk to the aspect (inches)
+    inches = min(min(a.get_position().width * fw, a.get_position().height * fh) for a in axes)
+    fig.savefig(path, dpi=max(100, math.ceil(image_width / inches)))
+
+
 def side_by_side(v: ViewResult, path: Path) -> None:
     """One view's four panels in a row, titled with their PSNR against Blender."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 4, figsize=(10, 2.9), dpi=100)
     _draw_row(axes, v, _panel_titles(v))
     fig.suptitle(f"view {v.index} ({v.kind})", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
+    _save(fig, axes, path, _image_width(v))
     plt.close(fig)
+
+
+def _image_width(v: ViewResult) -> int:
+    return max(image.shape[-1] for image in v.images.values())
 
 
 def overview_views(views: list[ViewResult], per_kind: int = 2) -> list[ViewResult]:
@@ -117,8 +136,7 @@ def overview(views: list[ViewResult], path: Path) -> None:
             f"view {v.index}\n{v.kind[:6]}.\n{v.psnr_raw:.1f} -> {v.psnr_enhanced:.1f} dB",
             fontsize=8,
         )
-    fig.tight_layout()
-    fig.savefig(path)
+    _save(fig, axes.ravel(), path, max(_image_width(v) for v in rows))
     plt.close(fig)
 
 
@@ -214,11 +232,12 @@ def plot(result: DemoResult, path: Path) -> None:
         for m, p, lab in zip(ms, [s["psnr_raw"], s["psnr_enhanced"]], ("gen", "enh")):
             ax2.annotate(lab, (m, p), fontsize=7, xytext=(3, 3), textcoords="offset points")
     rs, ms_size = result.settings.get("render_size"), result.settings.get("size")
+    model_size = "" if rs == ms_size else f" (the model's views: {ms_size}²)"
     ax2.axvline(
         1e3 * result.blender_view_s,
         color="grey",
         ls="--",
-        label=f"Cycles, one exact view at {rs}² (the model's views: {ms_size}²)",
+        label=f"Cycles, one exact view at {rs}²{model_size}",
     )
     ax2.set_xscale("log")
     ax2.set_xlabel("ms per view (reconstruction amortised)")
@@ -264,11 +283,10 @@ def report_markdown(result: DemoResult) -> str:
     return f"""# ProSplat demo
 
 Scene `{s["scene"]}` (seed {s["seed"]}, test split: no model saw it in training), built and
-rendered by Blender (Cycles, CPU, {s["samples"]} samples at {s["render_size"]}², downsampled to
-the model's {s["size"]}²). {s["inputs"]} wide-baseline input views; {len(result.views)} target
-cameras between the inputs (interpolation) and outside them (extrapolation). The scene with a
-camera per view: `scene.blend`; the Gaussians: `gaussians.ply` (open both in Blender; the
-ProSplat add-on imports the PLY as a point cloud).
+rendered by Blender (Cycles, CPU, {_render_text(s)}). {s["inputs"]} wide-baseline input
+views; {len(result.views)} target cameras between the inputs (interpolation) and outside them
+(extrapolation). The scene with a camera per view: `scene.blend`; the Gaussians:
+`gaussians.ply` (open both in Blender; the ProSplat add-on imports the PLY as a point cloud).
 
 ![overview](overview.png)
 
@@ -301,6 +319,9 @@ input sees (`prosplat eval ladder` runs the same rows on a test set).
 | Gaussian budget ({pruned}) | {t["prune"]:.2f} |
 | refinement against the inputs ({_refine_text(s)}) | {t.get("refine", 0.0):.2f} |
 | render + enhance {len(result.views)} views, incl. scoring | {t["views"]:.1f} |
+| evaluation ladder ({len(result.ladder)} rows of {len(result.views)} views, incl. scoring) \
+| {t.get("ladder", 0.0):.1f} |
+| pictures ({len(result.views)} side-by-sides, overview, plot) | {t.get("pictures", 0.0):.1f} |
 | whole demo | {t["total"]:.1f} |
 
 Timings are single runs on whatever machine ran this demo; `prosplat bench points` gives
@@ -315,6 +336,19 @@ ground truth.
 """
 
 
+def _render_text(settings: dict) -> str:
+    """How Blender made the ground truth: samples, denoiser, size (and the downsampling)."""
+    s = settings
+    denoise = s.get("denoise", "off")
+    n = s["samples"]
+    text = f"{n} sample{'' if n == 1 else 's'} at {s['render_size']}²"
+    if denoise != "off":
+        text += f", denoised ({denoise})"
+    if s["render_size"] != s["size"]:
+        return f"{text}, downsampled to the model's {s['size']}²"
+    return f"{text}, the model's size"
+
+
 def _refine_text(settings: dict) -> str:
     if settings.get("refine_seconds") is not None:
         return f"{settings['refine_seconds']:g} s budget"
@@ -327,13 +361,18 @@ def side_by_side_name(v: ViewResult) -> str:
 
 
 def write_report(result: DemoResult) -> None:
-    """Write every file of the module docstring into ``result.out``."""
+    """Write every file of the module docstring into ``result.out``; the seconds the
+    pictures took go into ``result.timings["pictures"]`` and onto its ``"total"``."""
     from tqdm import tqdm
 
+    t0 = time.perf_counter()
     (result.out / "views").mkdir(exist_ok=True)
     for v in tqdm(result.views, desc="writing pictures", unit="view"):
         side_by_side(v, result.out / "views" / side_by_side_name(v))
     overview(result.views, result.out / "overview.png")
     plot(result, result.out / "plot.png")
+    result.timings["pictures"] = time.perf_counter() - t0
+    if "total" in result.timings:  # the whole demo includes its pictures
+        result.timings["total"] += result.timings["pictures"]
     _write_tables(result)
     (result.out / "report.md").write_text(report_markdown(result))

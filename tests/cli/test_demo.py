@@ -41,6 +41,10 @@ def test_demo_writes_every_file_with_finite_scores(first_run):
         assert row["kind"] in ("interpolation", "extrapolation")
     report = (out / "report.md").read_text()
     assert "overview.png" in report and all(f"views/{v.name}" in report for v in views)
+    # the default denoiser, and Blender's size said as it is (render_scale 2 here)
+    assert "2 samples at 64², denoised (fast), downsampled to the model's 32²" in report
+    assert metrics["settings"]["denoise"] == "fast"
+    assert {"ladder", "pictures"} <= set(metrics["timings_s"])
     assert len(read_ply(out / "gaussians.ply")) == first_run.gaussians["kept"]
 
 
@@ -57,6 +61,25 @@ def test_demo_scores_are_against_blender_ground_truth(first_run):
     # side-by-side pictures hold four panels in a row: wider than tall
     pic = read_image(next((first_run.out / "views").glob("view_*.png")))
     assert pic.shape[2] > 3 * pic.shape[1]
+
+
+def test_demo_pictures_never_downsample_a_panel(tmp_path):
+    """A 256-px view's panels come out at least 256 px wide (the figure's resolution grows
+    with the views; nearest-neighbour downsampling would drop pixels)."""
+    from prosplat.cli.demo_report import PANELS, ViewResult, overview, side_by_side
+
+    size = 256
+    images = {key: torch.rand(3, size, size) for key, _ in PANELS}
+    scores = dict.fromkeys(("psnr", "ssim", "lpips"), 0.5)
+    v = ViewResult(
+        index=1, kind="interpolation", reference=0,
+        **{f"{m}_{w}": x for m, x in scores.items() for w in ("raw", "enhanced")},
+        render_ms=1.0, mori_ms=1.0, enhance_ms=1.0, images=images,
+    )  # fmt: skip
+    side_by_side(v, tmp_path / "row.png")
+    overview([v], tmp_path / "overview.png")
+    for name in ("row.png", "overview.png"):
+        assert read_image(tmp_path / name).shape[-1] > 4 * size, name
 
 
 def test_demo_generator_panel_is_the_raw_view_with_its_holes_filled(first_run):
@@ -96,6 +119,10 @@ def test_demo_rerun_does_not_clobber_and_overwrite_replaces(first_run, capsys):
     assert e.value.code == 0
     assert keep.read_text() == "mine"
     assert len(list((second / "views").glob("*.png"))) == 1
+    # the default render scale 1: Blender renders at the model's size, nothing downsampled
+    assert (
+        "1 sample at 32², denoised (fast), the model's size" in (second / "report.md").read_text()
+    )
 
 
 @pytest.mark.parametrize(
@@ -104,6 +131,7 @@ def test_demo_rerun_does_not_clobber_and_overwrite_replaces(first_run, capsys):
         (["--size", "48"], "multiple of 32"),
         (["--inputs", "7"], "2-6"),
         (["--budget", "0"], "budget"),
+        (["--denoise", "slow"], "invalid choice"),
     ],
 )
 def test_demo_bad_arguments_exit_2(tmp_path, capsys, bad, message):
