@@ -22,7 +22,6 @@ distribution. In both cases :func:`render_view` returns the raw render and says 
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,7 +35,7 @@ from prosplat.core.gaussians import Gaussians
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import centre_distances, select_reference
 from prosplat.improve.warp import warp_for
-from prosplat.render import RenderOutput, render, render_pair
+from prosplat.render import RenderOutput, check_max_radius, render, render_pair
 from prosplat.render.hole_fill import fill_colour
 
 #: The splat scale (:meth:`Gaussians.with_scale_factor`) for the generator's *unrefined*
@@ -77,13 +76,6 @@ MAX_SPLAT_RADIUS = 0.1
 OTHER_VIEWS_OPACITY = 0.5
 
 
-def _check_max_radius(value, name: str) -> None:
-    if isinstance(value, bool) or not (
-        isinstance(value, (int, float)) and math.isfinite(value) and value > 0
-    ):
-        raise ValueError(f"{name} must be a finite number > 0 (or None), got {value!r}")
-
-
 def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) -> Tensor:
     """[N] bool: the Gaussians that ``camera`` draws with a standard deviation wider than
     ``max_radius`` times the view's shorter side, along the splat's widest direction (the
@@ -99,7 +91,7 @@ def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) ->
     from prosplat.render.fused import project_gaussians_fused
     from prosplat.render.projection import project_gaussians, wider_than
 
-    _check_max_radius(max_radius, "max_radius")
+    check_max_radius(max_radius, "max_radius")
     g = gaussians.detach()
     # the fused kernel is the same float64 arithmetic at ~2.4x the speed (CPU only)
     p = (project_gaussians_fused if g.device.type == "cpu" else project_gaussians)(g, camera)
@@ -491,7 +483,7 @@ def render_view(
     options = options or EnhanceOptions()
     _check_other_views_opacity(other_views_opacity)
     if max_splat_radius is not None:  # checked even where a raw view on black ignores it
-        _check_max_radius(max_splat_radius, "max_splat_radius")
+        check_max_radius(max_splat_radius, "max_splat_radius")
     as_given = gaussians
     painted = fill_holes or improver is not None  # the holes the cap leaves are painted
     cap = max_splat_radius if painted else None

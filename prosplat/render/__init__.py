@@ -100,7 +100,7 @@ def render(
 def _too_wide(gaussians: Gaussians, camera: Camera, max_radius: float) -> Tensor:
     """[N] bool: :func:`wider_than` ``max_radius`` of the view's shorter side, through the
     torch projection (the backends without one of their own to share)."""
-    _check_max_radius(max_radius)
+    check_max_radius(max_radius)
     proj = project_gaussians(gaussians, camera)
     return wider_than(proj, max_radius * min(camera.width, camera.height))
 
@@ -168,7 +168,7 @@ def _project_cpu(
         gaussians = gaussians.to("cpu")
     proj = (project_gaussians_fused if fused else project_gaussians)(gaussians, camera)
     if max_radius is not None:
-        _check_max_radius(max_radius)
+        check_max_radius(max_radius)
         wide = wider_than(proj, max_radius * min(camera.width, camera.height))  # [N]
         proj = dataclasses.replace(proj, valid=proj.valid & ~wide)
     idx = torch.nonzero(proj.valid).squeeze(1)
@@ -195,8 +195,9 @@ def _composite_cpu(proj, order, opacities: Tensor, camera: Camera, bg: Tensor, d
     return result
 
 
-def _check_max_radius(value) -> None:
+def check_max_radius(value, name: str = "max_radius") -> None:
+    """Refuse a cap on the splats' radius that is not a finite number > 0, naming ``name``."""
     if isinstance(value, bool) or not (
         isinstance(value, (int, float)) and math.isfinite(value) and value > 0
     ):
-        raise ValueError(f"max_radius must be a finite number > 0 (or None), got {value!r}")
+        raise ValueError(f"{name} must be a finite number > 0 (or None), got {value!r}")
