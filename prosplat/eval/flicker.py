@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from prosplat.core.camera import Camera
-from prosplat.generator.adapter import rotmat_to_quat
+from prosplat.core.rotations import rotmat_to_quat
 from prosplat.render.projection import quat_to_rotmat
 
 #: A reprojected pixel counts as seen by both frames when the depths agree within this ratio.

@@ -19,44 +19,7 @@ import torch
 from torch import Tensor, nn
 
 from prosplat.core.gaussians import rgb_to_sh0
-from prosplat.core.rotations import quat_multiply
-
-
-def rotmat_to_quat(R: Tensor) -> Tensor:
-    """[...,3,3] rotations -> [...,4] unit quaternions (w, x, y, z), Shepperd's method: every
-    branch is computed and the best-conditioned one (largest square root) is kept."""
-    m = R
-    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
-    tr = m00 + m11 + m22
-    cands = torch.stack([tr, m00, m11, m22], dim=-1)  # [...,4]
-    s = 2.0 * torch.sqrt(
-        (1.0 + torch.stack([tr, m00 - m11 - m22, m11 - m00 - m22, m22 - m00 - m11], -1)).clamp_min(
-            1e-12
-        )
-    )  # [...,4]
-    d21, d02, d10 = (
-        m[..., 2, 1] - m[..., 1, 2],
-        m[..., 0, 2] - m[..., 2, 0],
-        m[..., 1, 0] - m[..., 0, 1],
-    )
-    s01, s02, s12 = (
-        m[..., 0, 1] + m[..., 1, 0],
-        m[..., 0, 2] + m[..., 2, 0],
-        m[..., 1, 2] + m[..., 2, 1],
-    )
-    q = torch.stack(
-        [
-            torch.stack([0.25 * s[..., 0], d21 / s[..., 0], d02 / s[..., 0], d10 / s[..., 0]], -1),
-            torch.stack([d21 / s[..., 1], 0.25 * s[..., 1], s01 / s[..., 1], s02 / s[..., 1]], -1),
-            torch.stack([d02 / s[..., 2], s01 / s[..., 2], 0.25 * s[..., 2], s12 / s[..., 2]], -1),
-            torch.stack([d10 / s[..., 3], s02 / s[..., 3], s12 / s[..., 3], 0.25 * s[..., 3]], -1),
-        ],
-        dim=-2,
-    )  # [...,4 branches,4]
-    best = cands.argmax(-1)  # [...]
-    q = torch.gather(q, -2, best[..., None, None].expand(*best.shape, 1, 4))[..., 0, :]
-    q = q / q.norm(dim=-1, keepdim=True)
-    return torch.where(q[..., :1] < 0, -q, q)
+from prosplat.core.rotations import quat_multiply, rotmat_to_quat
 
 
 def normalize_quat(q: Tensor, eps: float = 1e-6) -> Tensor:

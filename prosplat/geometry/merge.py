@@ -49,7 +49,7 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import SH_C0, Gaussians
-from prosplat.generator.adapter import rotmat_to_quat
+from prosplat.core.rotations import rotmat_to_quat
 from prosplat.geometry.budget import check_depth_maps, importance
 from prosplat.render.projection import quat_to_rotmat
 

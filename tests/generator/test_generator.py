@@ -11,8 +11,9 @@ import torch
 import prosplat.pipeline.model as pipeline
 from prosplat import Camera, render
 from prosplat.core.gaussians import rgb_to_sh0
+from prosplat.core.rotations import rotmat_to_quat
 from prosplat.generator import BASE, TINY, Generator, GeneratorConfig
-from prosplat.generator.adapter import GaussianAdapter, rotmat_to_quat
+from prosplat.generator.adapter import GaussianAdapter
 from prosplat.generator.cost_volume import (
     inverse_depth_candidates,
     nearest_views,

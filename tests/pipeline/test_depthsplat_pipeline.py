@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from prosplat import Camera, ProSplat
-from prosplat.generator.adapter import rotmat_to_quat  # noqa: F401  (same helper the wrapper uses)
+from prosplat.core.rotations import rotmat_to_quat  # noqa: F401  (same helper the wrapper uses)
 from prosplat.generator.depthsplat import random_encoder, save_released_format
 from prosplat.generator.depthsplat.config import SMALL
 from prosplat.generator.depthsplat.wrapper import DepthSplatGenerator, fit_size, prepare_views

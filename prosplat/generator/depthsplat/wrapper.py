@@ -27,8 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from prosplat.core.rotations import quat_multiply
-from prosplat.generator.adapter import rotmat_to_quat
+from prosplat.core.rotations import quat_multiply, rotmat_to_quat
 from prosplat.generator.depthsplat.config import LICENCES, DepthSplatConfig
 from prosplat.generator.depthsplat.model import DepthSplatEncoder
 from prosplat.generator.output import GeneratorOutput
