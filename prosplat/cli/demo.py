@@ -39,6 +39,7 @@ from tqdm import tqdm
 from prosplat.cli.demo_report import DemoResult, ViewResult, write_report
 from prosplat.core.camera import Camera
 from prosplat.core.paths import fresh_folder, staged_folder
+from prosplat.data.render_jobs import DENOISE_QUALITIES
 from prosplat.data.scene import SceneData, load_scene, resize_views
 
 DEMO_SCENE = "tabletop"  # a family or hard-scene name (scenes.builders)
@@ -48,9 +49,9 @@ DEMO_SEED = 950002  # test split: never seen in training
 #: size (denoised, :class:`DemoConfig`) half of it. The generator matches at 128 px
 #: (``TRAINED_SIZE``) and places its Gaussians at 256.
 DEMO_SIZE = 256
-#: Cycles' denoiser settings the demo offers (``--denoise``): ``scenes.render.DENOISE_QUALITY``'s
-#: names (that module needs bpy) and "off".
-DENOISE_CHOICES = ("off", "fast", "high")
+#: Cycles' denoiser settings the demo offers (``--denoise``): those of ``prosplat scenes
+#: render --denoise-quality`` and "off".
+DENOISE_CHOICES = ("off", *DENOISE_QUALITIES)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,14 @@ from pathlib import Path
 from queue import Empty, Queue
 
 from prosplat.cli.options import int_between
-from prosplat.data.render_jobs import DEFAULT_SIZE, MIN_SIZE, image_size, read_answer, size_options
+from prosplat.data.render_jobs import (
+    DEFAULT_SIZE,
+    DENOISE_QUALITIES,
+    MIN_SIZE,
+    image_size,
+    read_answer,
+    size_options,
+)
 from prosplat.data.scene_sets import SCENE_SETS, link_subset, parse_seeds
 from prosplat.data.splits import family_for_seed, split_of
 
@@ -275,7 +282,7 @@ def add_parser(sub) -> None:
     rend.add_argument("--denoise", action="store_true", help="run Cycles' denoiser (default off)")
     rend.add_argument(
         "--denoise-quality",
-        choices=("high", "fast"),  # scenes.render.DENOISE_QUALITY's names (that module needs bpy)
+        choices=DENOISE_QUALITIES,
         default="high",
         help="the denoiser's settings (with --denoise): high (Blender's default) or fast "
         "(no prefiltered albedo/normal passes, OIDN's balanced network: 0.7-0.8x the colour "

@@ -25,6 +25,9 @@ FAILED = "PROSPLAT_FAILED "
 
 DEFAULT_SIZE = 128  #: ``--size`` when no size is given: 128 x 128 px
 MIN_SIZE = 8  #: the smallest image side, in px
+#: Cycles' denoiser settings ``--denoise-quality`` offers: ``scenes.render.DENOISE_QUALITY``'s
+#: names (that module needs bpy; a test keeps the two alike)
+DENOISE_QUALITIES = ("high", "fast")
 
 
 def image_size(size: int | None, width: int | None, height: int | None) -> tuple[int, int]:

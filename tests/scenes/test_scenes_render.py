@@ -366,3 +366,13 @@ def test_the_renderer_refuses_bad_image_sizes(tmp_path, capsys, extra, message):
         main(["--name", "tabletop", "--seed", "7", "--out", str(tmp_path / "never"), *extra])
     assert stop.value.code == 2 and message in capsys.readouterr().err
     assert not (tmp_path / "never").exists()
+
+
+def test_the_cli_offers_the_renderers_denoiser_settings():
+    """``prosplat scenes render --denoise-quality`` and the demo's ``--denoise`` list
+    :data:`prosplat.data.render_jobs.DENOISE_QUALITIES`, a bpy-free copy of the renderer's
+    own table: the two must name the same settings."""
+    from prosplat.data.render_jobs import DENOISE_QUALITIES
+    from scenes.render import DENOISE_QUALITY
+
+    assert set(DENOISE_QUALITIES) == set(DENOISE_QUALITY)
