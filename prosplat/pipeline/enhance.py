@@ -35,8 +35,9 @@ from prosplat.core.gaussians import Gaussians
 from prosplat.improve.epipolar import fundamental_matrix
 from prosplat.improve.mori import centre_distances, select_reference
 from prosplat.improve.warp import warp_for
-from prosplat.render import RenderOutput, check_max_radius, render, render_pair
+from prosplat.render import RenderOutput, render, render_pair
 from prosplat.render.hole_fill import fill_colour
+from prosplat.render.projection import check_max_radius
 
 #: The splat scale (:meth:`Gaussians.with_scale_factor`) for the generator's *unrefined*
 #: Gaussians in a raw view whose holes are filled (``fill_holes``). The generator sizes its
@@ -91,11 +92,11 @@ def oversized_splats(gaussians: Gaussians, camera: Camera, max_radius: float) ->
     from prosplat.render.fused import project_gaussians_fused
     from prosplat.render.projection import project_gaussians, wider_than
 
-    check_max_radius(max_radius, "max_radius")
+    check_max_radius(max_radius)  # before the projection: a bad cap costs nothing
     g = gaussians.detach()
     # the fused kernel is the same float64 arithmetic at ~2.4x the speed (CPU only)
     p = (project_gaussians_fused if g.device.type == "cpu" else project_gaussians)(g, camera)
-    return wider_than(p, max_radius * min(camera.width, camera.height))
+    return wider_than(p, camera, max_radius)
 
 
 def _check_other_views_opacity(value) -> None:

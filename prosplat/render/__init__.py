@@ -9,7 +9,6 @@ rasterizer semantics of DESIGN.md; the pure-torch brute-force twin that defines 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import torch
 from torch import Tensor
@@ -17,7 +16,11 @@ from torch import Tensor
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
 from prosplat.render.output import RenderOutput
-from prosplat.render.projection import ProjectedGaussians, project_gaussians, wider_than
+from prosplat.render.projection import (
+    ProjectedGaussians,
+    project_gaussians,
+    wider_than,
+)
 
 __all__ = ["RenderOutput", "render", "render_pair", "project_gaussians", "ProjectedGaussians"]
 
@@ -91,18 +94,11 @@ def render(
 
         if max_radius is None:
             return render_gsplat(gaussians, camera, bg)
-        keep = ~_too_wide(gaussians, camera, max_radius)  # [N]
+        # judged by the torch projection: gsplat's own is not shared with this code
+        keep = ~wider_than(project_gaussians(gaussians, camera), camera, max_radius)  # [N]
         return _scattered(render_gsplat(gaussians[keep], camera, bg), keep)
     proj, order = _project_cpu(gaussians, camera, backend == "cpu-fused", max_radius)
     return _composite_cpu(proj, order, proj.opacities, camera, bg, gaussians.device)
-
-
-def _too_wide(gaussians: Gaussians, camera: Camera, max_radius: float) -> Tensor:
-    """[N] bool: :func:`wider_than` ``max_radius`` of the view's shorter side, through the
-    torch projection (the backends without one of their own to share)."""
-    check_max_radius(max_radius)
-    proj = project_gaussians(gaussians, camera)
-    return wider_than(proj, max_radius * min(camera.width, camera.height))
 
 
 def _scattered(out: RenderOutput, keep: Tensor) -> RenderOutput:
@@ -168,9 +164,7 @@ def _project_cpu(
         gaussians = gaussians.to("cpu")
     proj = (project_gaussians_fused if fused else project_gaussians)(gaussians, camera)
     if max_radius is not None:
-        check_max_radius(max_radius)
-        wide = wider_than(proj, max_radius * min(camera.width, camera.height))  # [N]
-        proj = dataclasses.replace(proj, valid=proj.valid & ~wide)
+        proj = dataclasses.replace(proj, valid=proj.valid & ~wider_than(proj, camera, max_radius))
     idx = torch.nonzero(proj.valid).squeeze(1)
     order = idx[torch.argsort(proj.depths.detach()[idx], stable=True)]
     return proj, order
@@ -193,11 +187,3 @@ def _composite_cpu(proj, order, opacities: Tensor, camera: Camera, bg: Tensor, d
     if device.type != "cpu":
         result = RenderOutput(*(x.to(device) for x in (rgb, alpha, depth, proj.valid)))
     return result
-
-
-def check_max_radius(value, name: str = "max_radius") -> None:
-    """Refuse a cap on the splats' radius that is not a finite number > 0, naming ``name``."""
-    if isinstance(value, bool) or not (
-        isinstance(value, (int, float)) and math.isfinite(value) and value > 0
-    ):
-        raise ValueError(f"{name} must be a finite number > 0 (or None), got {value!r}")

@@ -18,6 +18,7 @@ changes the image: the rasterizer is exactly "skip samples under 1/255".
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -53,14 +54,25 @@ class ProjectedGaussians:
     valid: Tensor
 
 
-def wider_than(proj: ProjectedGaussians, max_sd: float) -> Tensor:
-    """[N] bool: the drawn (``valid``) Gaussians whose screen footprint has a standard
-    deviation wider than ``max_sd`` pixels along its widest direction. The conic is the
-    inverse 2D covariance, so its smallest eigenvalue is 1 / (the widest sd)²; computed in
-    float64 whatever the projection's dtype."""
+def check_max_radius(value, name: str = "max_radius") -> None:
+    """Refuse a cap on the splats' radius that is not a finite number > 0, naming ``name``."""
+    if isinstance(value, bool) or not (
+        isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+    ):
+        raise ValueError(f"{name} must be a finite number > 0 (or None), got {value!r}")
+
+
+def wider_than(proj: ProjectedGaussians, camera: Camera, max_radius: float) -> Tensor:
+    """[N] bool: the drawn (``valid``) Gaussians of ``proj`` (projected for ``camera``)
+    whose screen footprint has a standard deviation wider than ``max_radius`` times the
+    view's shorter side along its widest direction. The conic is the inverse 2D covariance,
+    so its smallest eigenvalue is 1 / (the widest sd)²; computed in float64 whatever the
+    projection's dtype."""
+    check_max_radius(max_radius)
+    limit = max_radius * min(camera.width, camera.height)  # px
     a, b, c = proj.conics.detach().to(torch.float64).unbind(-1)  # [N] each
     low = (a + c) / 2 - torch.sqrt(((a - c) / 2) ** 2 + b * b)  # [N]
-    return proj.valid & (low * max_sd * max_sd < 1)
+    return proj.valid & (low * limit * limit < 1)
 
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
