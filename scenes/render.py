@@ -32,7 +32,15 @@ from prosplat.core.camera import Camera
 from prosplat.core.image_io import write_depth
 from prosplat.data.overlap import overlap_matrix
 from prosplat.data.render_jobs import DEFAULT_SIZE, image_size
-from prosplat.data.rigs import arc_rig, choose_rig
+from prosplat.data.rigs import (
+    arc_rig,
+    choose_rig,
+    draw_lens,
+    draw_roll,
+    parse_lens_range,
+    parse_roll,
+    roll_camera,
+)
 from prosplat.data.splits import split_of
 from scenes.builders import SceneInfo, build_scene
 
@@ -186,8 +194,10 @@ def render_scene(
     progress: bool = False,
     blend: Path | None = None,
     arc: int | None = None,
+    roll: float = 0.0,
+    lens_range: tuple[float, float] | None = None,
 ) -> Path:
-    """Build and render scene ``name`` (a family or a hard scene) for ``seed`` into ``out``.
+    """Build and render scene ``name`` (a family, hard or capture scene) for ``seed`` into ``out``.
 
     Returns the scene folder. Skips (returns at once) when the folder already exists.
     ``size`` is ``N`` for N x N px images or ``(width, height)``: Blender's 36 mm sensor (fit
@@ -200,7 +210,17 @@ def render_scene(
     ``arc`` N renders N views evenly spaced over the first quarter of the trajectory instead of a
     sparse rig (:func:`prosplat.data.rigs.arc_rig`: ``n_inputs`` inputs, the rest targets;
     ``n_targets`` is ignored): the overlapping sweep that the structure-from-motion tests use.
+    ``roll`` D rolls each view's camera about its viewing axis by an angle uniform in [-D, D]
+    degrees (:func:`prosplat.data.rigs.draw_roll`, keyed by the seed and the view's index;
+    recorded as the frame's ``roll_deg``), as hand-held photos are rarely level; 0 leaves
+    every camera exactly as before. ``lens_range`` (A, B) replaces the scene's lens by one
+    drawn log-uniformly in [A, B] mm from the seed (:func:`prosplat.data.rigs.draw_lens`; the
+    trajectory stays), for a range of focal lengths across scenes; not with ``lens_mm``.
     """
+    if lens_range is not None and lens_mm is not None:
+        raise ValueError("pass lens_mm or lens_range, not both")
+    if roll < 0:
+        raise ValueError(f"roll is a largest angle in degrees, >= 0; got {roll}")
     final = out / scene_folder_name(name, seed)
     if final.exists():
         return final
@@ -225,14 +245,16 @@ def render_scene(
         cam_obj = bpy.data.objects.new("prosplat_camera", bpy.data.cameras.new("prosplat_camera"))
         sc.collection.objects.link(cam_obj)
         sc.camera = cam_obj
-        fx = (lens_mm or info.lens_mm) / 36.0 * max(width, height)  # sensor fit AUTO
+        lens = draw_lens(seed, lens_range) if lens_range else lens_mm or info.lens_mm
+        fx = lens / 36.0 * max(width, height)  # sensor fit AUTO
         views = [(i, "input", None) for i in rig.inputs]
         views += [(i, "target", k) for i, k in zip(rig.targets, rig.target_kinds)]
         views.sort()
         frames, cameras, depths, view_seconds = [], [], [], []
         for v, (traj_index, split, kind) in enumerate(views):
             eye, look = info.trajectory[traj_index]
-            camera = Camera.look_at(eye, look, SKY_UP, fx, width, height)
+            roll_deg = draw_roll(seed, v, roll)
+            camera = roll_camera(Camera.look_at(eye, look, SKY_UP, fx, width, height), roll_deg)
             _place_camera(cam_obj, camera)
             t_view = time.perf_counter()
             depth = _render_view(
@@ -254,6 +276,8 @@ def render_scene(
             }
             if kind is not None:
                 extra["target_kind"] = kind
+            if roll:
+                extra["roll_deg"] = roll_deg
             frames.append(Frame(camera, f"images/{v:03d}.png", extra))
             cameras.append(camera)
             depths.append(torch.from_numpy(depth))
@@ -286,6 +310,11 @@ def render_scene(
                 "view_seconds": view_seconds,
             },
         }
+        if roll:
+            meta["renderer"]["max_roll_deg"] = roll
+        if lens_range:
+            meta["renderer"]["lens_range_mm"] = list(lens_range)
+            meta["renderer"]["lens_mm"] = lens
         write_transforms(tmp / "transforms.json", frames, meta)
         if blend is not None:
             save_blend(blend, cam_obj, frames)
@@ -330,9 +359,24 @@ def save_blend(path: Path, template, frames: list[Frame]) -> None:
     bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True, compress=True)
 
 
+def _option(parse):
+    """An argparse ``type`` that reports ``parse``'s ``ValueError`` message as it is."""
+
+    def checked(text: str):
+        try:
+            return parse(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    checked.__name__ = parse.__name__
+    return checked
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Render one seeded scene with Cycles (bpy).")
-    ap.add_argument("--name", help="family (room, tabletop, open) or hard scene name")
+    ap.add_argument(
+        "--name", help="family (room, tabletop, open), hard scene or capture scene name"
+    )
     ap.add_argument("--seed", type=int)
     ap.add_argument(
         "--jobs-from-stdin",
@@ -365,6 +409,22 @@ def main(argv: list[str] | None = None) -> int:
         help="render N views evenly spaced over a quarter of the trajectory (a dense, overlapping "
         "sweep for structure from motion; --targets is ignored)",
     )
+    ap.add_argument(
+        "--roll",
+        type=_option(parse_roll),
+        default=0.0,
+        metavar="DEG",
+        help="roll each view's camera about its viewing axis by an angle drawn uniformly in "
+        "[-DEG, DEG] (seeded per scene and view); default 0: level cameras",
+    )
+    ap.add_argument(
+        "--lens-range",
+        type=_option(parse_lens_range),
+        default=None,
+        metavar="A-B",
+        help="draw the scene's lens log-uniformly in [A, B] mm (36 mm sensor) from the seed "
+        "instead of the scene's own (the camera path stays)",
+    )
     args = ap.parse_args(argv)
     try:
         size = image_size(args.size, args.width, args.height)
@@ -386,6 +446,8 @@ def main(argv: list[str] | None = None) -> int:
             progress=args.progress,
             blend=args.blend,
             arc=args.arc,
+            roll=args.roll,
+            lens_range=args.lens_range,
         )
 
     if args.jobs_from_stdin:

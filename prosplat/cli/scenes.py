@@ -25,33 +25,64 @@ from prosplat.data.render_jobs import (
     read_answer,
     size_options,
 )
+from prosplat.data.rigs import parse_lens_range, parse_roll
 from prosplat.data.scene_sets import SCENE_SETS, link_subset, parse_seeds
 from prosplat.data.splits import family_for_seed, split_of
 
 
 def render_worker_command(args: argparse.Namespace) -> list[str]:
     """The command line of one long-lived Blender worker of ``prosplat scenes render``: Cycles
-    gets ``--threads`` threads, by default the machine's cores shared by the workers. Raises
-    ``ValueError`` for an image size :func:`~prosplat.data.render_jobs.image_size` refuses."""
+    gets ``--threads`` threads, by default the machine's cores shared by the workers; ``--roll``
+    and ``--lens-range`` travel on it like the image size (every scene of a run shares them).
+    Raises ``ValueError`` for an image size :func:`~prosplat.data.render_jobs.image_size`
+    refuses."""
     threads = args.threads or max(1, (os.cpu_count() or 1) // args.workers)
     width, height = image_size(args.size, args.width, args.height)
-    return [
-        sys.executable,
-        "-m",
-        "scenes.render",
-        "--jobs-from-stdin",
-        "--out",
-        str(args.out),
-        *size_options(width, height),
-        "--inputs",
-        str(args.inputs),
-        "--targets",
-        str(args.targets),
-        "--samples",
-        str(args.samples),
-        "--threads",
-        str(threads),
-    ] + (["--denoise", "--denoise-quality", args.denoise_quality] if args.denoise else [])
+    return (
+        [
+            sys.executable,
+            "-m",
+            "scenes.render",
+            "--jobs-from-stdin",
+            "--out",
+            str(args.out),
+            *size_options(width, height),
+            "--inputs",
+            str(args.inputs),
+            "--targets",
+            str(args.targets),
+            "--samples",
+            str(args.samples),
+            "--threads",
+            str(threads),
+        ]
+        + (["--denoise", "--denoise-quality", args.denoise_quality] if args.denoise else [])
+        + camera_options(args.roll, args.lens_range)
+    )
+
+
+def camera_options(roll: float, lens_range: tuple[float, float] | None) -> list[str]:
+    """The worker's ``--roll`` / ``--lens-range`` options, only where they are not the
+    defaults: a run without them starts the very workers it started before they existed.
+    ``repr`` writes the floats exactly, so the worker draws what the parent asked for."""
+    out = ["--roll", repr(roll)] if roll else []
+    if lens_range is not None:
+        out += ["--lens-range", f"{lens_range[0]!r}-{lens_range[1]!r}"]
+    return out
+
+
+def _option(parse):
+    """An argparse ``type`` that reports ``parse``'s ``ValueError`` message as it is, so
+    ``--lens-range 85-24`` fails with "runs backwards", not "invalid value"."""
+
+    def checked(text: str):
+        try:
+            return parse(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    checked.__name__ = parse.__name__
+    return checked
 
 
 def cmd_scenes_render(args: argparse.Namespace) -> int:
@@ -301,9 +332,27 @@ def add_parser(sub) -> None:
     rend.add_argument(
         "--scene",
         default=None,
-        help="family (room, tabletop, open) or hard scene (textureless, "
+        help="family (room, tabletop, open), hard scene (textureless, "
         "thin_structures, repeated_pattern, specular, near_far, "
-        "inside_outside); default: the seed's family",
+        "inside_outside) or capture scene (object_ring: objects on a plain background "
+        "ringed by cameras, like DTU); default: the seed's family",
+    )
+    rend.add_argument(
+        "--roll",
+        type=_option(parse_roll),
+        default=0.0,
+        metavar="DEG",
+        help="roll each view's camera about its viewing axis by an angle drawn uniformly in "
+        "[-DEG, DEG] degrees, seeded per scene and view, as hand-held photos are rarely level "
+        "(default 0: level cameras, as before)",
+    )
+    rend.add_argument(
+        "--lens-range",
+        type=_option(parse_lens_range),
+        default=None,
+        metavar="A-B",
+        help="draw each scene's lens log-uniformly in [A, B] mm (36 mm sensor), one per scene "
+        "from its seed, e.g. 24-85; the camera path stays (default: the scene's own lens)",
     )
     rend.set_defaults(func=cmd_scenes_render)
     lst = scenes_sub.add_parser(

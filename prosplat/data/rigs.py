@@ -9,12 +9,15 @@ reproducible from its seed.
 
 from __future__ import annotations
 
+import math
 import random
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
+
+from prosplat.core.camera import Camera
 
 if TYPE_CHECKING:
     from prosplat.data.scene import SceneData
@@ -116,3 +119,100 @@ def pick_inputs(scene: SceneData, n: int) -> list[int]:
         raise ValueError(f"{scene.folder}: has {len(ins)} input views, cannot evaluate {n}")
     centers = torch.stack([scene.cameras[i].center for i in ins])
     return sorted(ins[k] for k in farthest_point_sampling(centers, n))
+
+
+# ---- photo-like cameras: roll about the viewing axis, a drawn focal length ----------------------
+
+
+def roll_camera(camera: Camera, degrees: float) -> Camera:
+    """``camera`` rolled by ``degrees`` about its own viewing axis (same centre, same optical
+    axis, same intrinsics).
+
+    Why: hand-held photo sets are rarely level, while every rendered trajectory keeps the
+    horizon level (``Camera.look_at`` with a fixed sky-up); rolled training views keep the
+    model from relying on "image up = world up". A positive angle turns the camera
+    counter-clockwise as seen from behind it (right-handed about its *backward* axis,
+    Blender's local +Z), so the picture's content turns clockwise. In OpenCV axes (x right,
+    y down, z forward) the new axes are ``x' = cos(a) x - sin(a) y`` and ``y' = sin(a) x +
+    cos(a) y``: the camera's up (``-y``) turns towards its old left (``-x``) by exactly
+    ``degrees``. ``degrees == 0`` returns ``camera`` itself, so an unrolled render is
+    bit-identical to one made before roll existed.
+    """
+    if degrees == 0:
+        return camera
+    a = math.radians(degrees)
+    c, s = math.cos(a), math.sin(a)
+    turn = torch.eye(4, dtype=camera.world_to_cam.dtype, device=camera.world_to_cam.device)
+    turn[:2, :2] = torch.tensor([[c, -s], [s, c]], dtype=turn.dtype)
+    return Camera(camera.K, turn @ camera.world_to_cam, camera.width, camera.height)
+
+
+def draw_roll(seed: int, view: int, max_degrees: float) -> float:
+    """The roll of view ``view`` of scene ``seed`` in degrees, uniform in
+    ``[-max_degrees, max_degrees]``; 0.0 when ``max_degrees`` is 0.
+
+    Why its own stream, keyed by (seed, view): the rig, the scene and Cycles' noise use the
+    seed's other streams, so turning roll on changes nothing but the cameras' roll, and a
+    view's roll does not depend on how many views came before it."""
+    if max_degrees < 0:
+        raise ValueError(f"max roll must be >= 0 degrees, got {max_degrees}")
+    if max_degrees == 0:
+        return 0.0
+    return random.Random(f"prosplat/roll/{int(seed)}/{int(view)}").uniform(
+        -max_degrees, max_degrees
+    )
+
+
+def draw_lens(seed: int, lens_range: tuple[float, float]) -> float:
+    """Scene ``seed``'s lens in mm (36 mm sensor), log-uniform in ``lens_range = (A, B)``.
+
+    Why log-uniform: a focal length scales the image, so equal ratios (24 -> 35 mm, 58 -> 85
+    mm) are equally different views of the world; uniform in mm would crowd the draws at the
+    long end. One lens per scene (its own stream keyed by the seed), as a photo set is mostly
+    shot at one zoom setting."""
+    lo, hi = lens_range
+    if not 0 < lo <= hi:
+        raise ValueError(f"lens range must be 0 < A <= B mm, got {lo}-{hi}")
+    u = random.Random(f"prosplat/lens/{int(seed)}").random()
+    return math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo)))
+
+
+def parse_lens_range(text: str) -> tuple[float, float]:
+    """``"24-85"`` -> ``(24.0, 85.0)``: the ``--lens-range A-B`` option of ``prosplat scenes
+    render`` and of the renderer's worker, checked the same way on both sides.
+
+    Raises:
+        ValueError: one line naming the fix for text that is not ``A-B``, a non-positive or
+            non-finite lens, or ``B < A``.
+    """
+    text = str(text).strip()
+    if text.startswith("-"):
+        raise ValueError(f"--lens-range {text!r}: focal lengths must be > 0 mm")
+    first, sep, last = text.partition("-")
+    try:
+        lo, hi = float(first), float(last)
+    except ValueError:
+        lo = hi = float("nan")
+    if not sep or not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"--lens-range {text!r} is not A-B in mm, e.g. --lens-range 24-85")
+    if lo <= 0 or hi <= 0:
+        raise ValueError(f"--lens-range {text!r}: focal lengths must be > 0 mm")
+    if hi < lo:
+        raise ValueError(f"--lens-range {text!r} runs backwards; write the shorter lens first")
+    return lo, hi
+
+
+def parse_roll(text: str) -> float:
+    """``"20"`` -> ``20.0``: the ``--roll DEG`` option (largest roll, 0-180 degrees) of
+    ``prosplat scenes render`` and of the renderer's worker, checked alike on both sides.
+
+    Raises:
+        ValueError: one line naming the fix for anything but a number in [0, 180].
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value <= 180:
+        raise ValueError(f"--roll {text!r}: give the largest roll angle, 0-180 degrees")
+    return value

@@ -9,6 +9,8 @@ been rendered since.
 
 Seed ranges are written ``"FIRST-LAST FIRST-LAST ..."`` (single seeds too); ``hard:A-B`` adds
 the hard scenes of render rounds A..B of the training block (two seeds per kind and round).
+A set of one scene kind (``photo128``: ``object_ring`` only) names it, and every one of its
+commands renders that kind whatever the seed.
 """
 
 from __future__ import annotations
@@ -88,27 +90,29 @@ class SceneSet:
     options: str  # size, views, samples, denoiser
     seeds: str  # seed ranges (parse_seeds)
     about: str = ""
+    scene: str | None = None  # every seed renders this scene kind (default: scene_name's)
 
     def render_commands(
         self, seeds: str | Iterable[int] | None = None, root: str | Path = "data"
     ) -> list[str]:
         """The commands that render ``seeds`` (ranges or seeds; default: the whole set) into
-        ``root/name``: one per run of consecutive seeds of one scene kind. They skip finished
-        scenes, so a command re-run completes a partial set."""
+        ``root/name``: one per run of consecutive seeds of one scene kind (the set's ``scene``,
+        else :func:`scene_name`'s). They skip finished scenes, so a command re-run completes a
+        partial set."""
         if seeds is None or isinstance(seeds, str):
             chosen = parse_seeds(seeds if seeds is not None else self.seeds)
         else:
             chosen = tuple(sorted(set(seeds)))
         runs: list[list[int]] = []
         for seed in chosen:
-            if runs and seed == runs[-1][-1] + 1 and scene_name(seed) == scene_name(runs[-1][0]):
+            if runs and seed == runs[-1][-1] + 1 and self.kind(seed) == self.kind(runs[-1][0]):
                 runs[-1].append(seed)
             else:
                 runs.append([seed])
         out = Path(root) / self.name
         commands = []
         for run in runs:
-            kind = scene_name(run[0])
+            kind = self.kind(run[0])
             commands.append(
                 f"prosplat scenes render --seed {run[0]} --count {len(run)}"
                 + (f" --scene {kind}" if kind else "")
@@ -116,11 +120,19 @@ class SceneSet:
             )
         return commands
 
+    def kind(self, seed: int) -> str | None:
+        """The scene kind ``seed`` renders in this set; None: the seed's family."""
+        return self.scene or scene_name(seed)
+
 
 _TRAIN128 = "--size 128 --inputs 6 --targets 10 --samples 8 --denoise --denoise-quality fast"
 #: The evaluation sets as they were rendered (16 samples, the denoiser's high settings), so a
 #: set rendered again gives the same pixels and the same tables.
 _TEST = "--inputs 6 --targets 8 --samples 16 --denoise"
+#: Photo-like captures: object_ring scenes (objects on a plain background, a ring of cameras)
+#: with rolled cameras (up to 20 degrees) and a lens per scene in 24-85 mm, the train128
+#: settings otherwise, for the object-centric photo sets (DTU, Middlebury) the families miss.
+_PHOTO128 = f"{_TRAIN128} --roll 20 --lens-range 24-85"
 
 #: The sets by name. ``train128`` lists its first 40 rounds; runs use subsets of it. Its
 #: first rounds were rendered with 16 samples and the denoiser's high settings (each scene's
@@ -145,6 +157,10 @@ SCENE_SETS: dict[str, SceneSet] = {
                  "the test ladder at 64 and 128 px: 6 hard + 18 family scenes"),
         SceneSet("test256", f"--size 256 {_TEST}", "987000-987005",
                  "the test ladder at 256 px (all 24: seeds 950100-950105 987000-987017)"),
+        SceneSet("photo128", _PHOTO128, "30000-30999",
+                 "object_ring scenes like object-centric photo sets: a ring of rolled cameras "
+                 "with 24-85 mm lenses round objects on a plain background (train split)",
+                 scene="object_ring"),
     )
 }  # fmt: skip
 

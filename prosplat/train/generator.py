@@ -30,6 +30,13 @@ Variable input views: ``--inputs 2,4,6`` draws each step's view count from the s
 seeded by (seed, step) (all items of a step share it, every rank draws the same); ``--inputs 2``
 fixes it. Validation scores every count and logs the mean plus ``val_psnr_<N>v`` per count.
 
+Camera effects: ``--camera-effects P`` gives that share of the input views (after the step's
+resize or crop) exposure, white balance, vignetting, blur, sensor noise and JPEG, drawn by
+(seed, step), the targets left clean (:mod:`prosplat.train.camera_effects`), so the generator
+learns to see through what photographs add to the noise-free renders. ``--roll-prob P`` turns
+that share of the views (inputs and targets) by a quarter turn with their cameras
+(:mod:`prosplat.train.view_rotation`): rolled photos, from upright renders.
+
 Fine-tuning DepthSplat: ``--init depthsplat-gs-*.pth`` trains only its Gaussian regressor and
 head on the scenes, the rest frozen, and writes ``<init stem>-prosplat-ft.pth`` (DepthSplat's
 released layout, loadable with ``ProSplat.from_pretrained(generator=...)``) beside the usual
@@ -69,6 +76,7 @@ from prosplat.train.batches import (
     to_device,
     val_view,
 )
+from prosplat.train.camera_effects import input_camera_effects
 from prosplat.train.common import (
     Dist,
     changed_settings,
@@ -83,6 +91,7 @@ from prosplat.train.common import (
 from prosplat.train.ema import WeightAverage
 from prosplat.train.generator_config import TrainConfig
 from prosplat.train.losses import render_loss, render_views
+from prosplat.train.view_rotation import roll_generator, roll_views
 
 if TYPE_CHECKING:
     from prosplat.data import SceneDataset
@@ -303,6 +312,9 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             batch = to_device(batch, device)
             if cfg.size_choices:  # a size per step, seeded apart from the view count's draw
                 batch = step_view(batch, cfg, step)
+            batch = roll_views(batch, cfg.roll_prob, roll_generator(cfg.seed, step, dist.rank))
+            # the inputs only, at the step's pixel scale; the targets stay the clean truth
+            batch = input_camera_effects(batch, cfg, step, dist.rank, dist.world_size)
             if pipe is not None:  # the size the weights are for: the largest drawn, else the data's
                 pipe.trained_size = max(cfg.size_choices or (int(batch["input_images"].shape[-2]),))
             for group in opt.param_groups:

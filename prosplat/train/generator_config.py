@@ -123,6 +123,15 @@ class TrainConfig:
     # at the data's size, this share of steps crops a window of another shape (see
     # frame_window): other aspect ratios and narrower fields of view than the square renders
     frame_prob: float = 0.0
+    # the share of input views given camera effects (exposure, white balance, vignetting,
+    # blur, sensor noise, JPEG; prosplat.train.camera_effects) after the step's resize or crop,
+    # each effect on or off per view; the targets stay clean, so the generator learns to see
+    # through what photographs add to Blender's noise-free renders. 0: off
+    camera_effects: float = 0.0
+    # the share of views (inputs and targets, each on its own) turned by a quarter turn, their
+    # cameras rolled to match (prosplat.train.view_rotation; square steps only): photos come
+    # rolled (portrait shots, the Middlebury rings turned by 90 degrees), renders never. 0: off
+    roll_prob: float = 0.0
     cache_scenes: int = 32  # decoded scenes kept in memory (raise it where memory allows)
     # start from these weights (a fresh optimiser, step 0): a prosplat generator
     # (.safetensors) trains all of it; a DepthSplat checkpoint (depthsplat-gs-*.pth, README
@@ -175,7 +184,7 @@ class TrainConfig:
             raise ValueError(
                 f"input_depth_ce_weight must be >= 0, got {self.input_depth_ce_weight}"
             )
-        for name in ("crop_prob", "frame_prob"):
+        for name in ("crop_prob", "frame_prob", "camera_effects", "roll_prob"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if not 0 <= self.ema < 1:

@@ -1,9 +1,10 @@
 """Seeded procedural Blender scenes for training and testing sparse-view reconstruction.
 
 ``build_scene(name_or_family, seed)`` clears the current bpy scene, builds a scene of one
-family ("room", "tabletop", "open") or a hard variant (``HARD_SCENES``) into it (geometry,
-materials, lights, world; no camera, no render settings) and returns a ``SceneInfo`` with
-a smooth camera trajectory, a suggested lens and the scene bounds.
+family ("room", "tabletop", "open"), a hard variant (``HARD_SCENES``) or a capture-like scene
+(``CAPTURE_SCENES``: object-centric photo sets' set-ups) into it (geometry, materials, lights,
+world; no camera, no render settings) and returns a ``SceneInfo`` with a smooth camera
+trajectory, a suggested lens and the scene bounds.
 
 Determinism: all randomness comes from ``random.Random`` / ``numpy.random.default_rng``
 seeded from ``seed``; layout and materials use separate streams, so a hard variant that
@@ -22,11 +23,12 @@ import numpy as np
 
 from prosplat.data.splits import FAMILIES, family_for_seed
 
-from . import hard, house, open_scene, paths, room, tabletop
+from . import hard, house, object_ring, open_scene, paths, room, tabletop
 from .palette import Palette
 from .query import clear_path, object_aabbs, scene_bounds, scene_fingerprint
 
 __all__ = [
+    "CAPTURE_SCENES",
     "CLEARANCE",
     "FAMILIES",
     "HARD_SCENES",
@@ -47,14 +49,14 @@ CLEARANCE = 0.3  # metres between any camera eye and any object's bounding box
 class SceneInfo:
     """What the renderer needs to know about a built scene."""
 
-    name: str  # "room", "tabletop", "open" or a hard-scene name
+    name: str  # "room", "tabletop", "open", a hard-scene or a capture-scene name
     family: str  # "room" | "tabletop" | "open"
     seed: int
     trajectory: list[tuple[Vec3, Vec3]]  # (eye, look_at), world coords (Z up), smooth, ordered
     lens_mm: float  # focal length for a 36 mm wide sensor
     bounds_min: Vec3  # axis-aligned bounds of all geometry (world)
     bounds_max: Vec3
-    tags: tuple[str, ...]  # e.g. ("textureless",) for hard scenes
+    tags: tuple[str, ...]  # the hard or capture scene's name, e.g. ("textureless",)
 
 
 HARD_SCENES: tuple[str, ...] = (
@@ -65,8 +67,11 @@ HARD_SCENES: tuple[str, ...] = (
     "near_far",
     "inside_outside",
 )
+#: Scenes set up like real object-centric photo sets (a ring of cameras round objects on a
+#: plain background). Kept apart from ``HARD_SCENES``, which drives ``prosplat bench hard``.
+CAPTURE_SCENES: tuple[str, ...] = ("object_ring",)
 
-Builder = Callable[[random.Random, Palette], paths.Built]
+Builder = Callable[..., paths.Built]  # (layout rng, palette), and the seed for CAPTURE_SCENES
 # name -> (family, palette style, builder)
 _SCENES: dict[str, tuple[str, str, Builder]] = {
     "room": ("room", "varied", lambda r, p: room.build(r, p)[0]),
@@ -78,6 +83,7 @@ _SCENES: dict[str, tuple[str, str, Builder]] = {
     "specular": ("tabletop", "specular", hard.specular),
     "near_far": ("open", "varied", hard.near_far),
     "inside_outside": ("open", "varied", house.inside_outside),
+    "object_ring": ("tabletop", "varied", object_ring.build),
 }
 
 
@@ -93,7 +99,8 @@ def build_scene(name_or_family: str, seed: int) -> SceneInfo:
     """
     if name_or_family not in _SCENES:
         raise ValueError(
-            f"unknown scene {name_or_family!r}; use a family {FAMILIES} or a hard scene {HARD_SCENES}"
+            f"unknown scene {name_or_family!r}; use a family {FAMILIES}, a hard scene "
+            f"{HARD_SCENES} or a capture scene {CAPTURE_SCENES}"
         )
     family, style, builder = _SCENES[name_or_family]
     seed = int(seed)
@@ -102,10 +109,13 @@ def build_scene(name_or_family: str, seed: int) -> SceneInfo:
     layout_key = "room" if name_or_family == "textureless" else name_or_family
     layout_rng = random.Random(f"{layout_key}/layout/{seed}")
     palette = Palette(random.Random(f"materials/{seed}"), np.random.default_rng([seed, 1]), style)
-    built = builder(layout_rng, palette)
+    if name_or_family in CAPTURE_SCENES:  # their lens has a stream of its own, keyed by seed
+        built = builder(layout_rng, palette, seed)
+    else:
+        built = builder(layout_rng, palette)
     clear_path(built.eyes, CLEARANCE)
     lo, hi = scene_bounds()
-    tags = (name_or_family,) if name_or_family in HARD_SCENES else ()
+    tags = (name_or_family,) if name_or_family in HARD_SCENES + CAPTURE_SCENES else ()
     return SceneInfo(
         name=name_or_family,
         family=family,

@@ -96,3 +96,25 @@ def orbit(
     z = heights[0] + (heights[1] - heights[0]) * 0.5 * (1 + np.sin(3 * a + 2 * phase))
     ang = phase + direction * a
     return np.stack([centre[0] + r * np.cos(ang), centre[1] + r * np.sin(ang), z], axis=1)
+
+
+def ring(
+    centre: np.ndarray,
+    distance: float,
+    elevation: float,
+    phase: float,
+    wobble: float = 0.0,
+    n: int = N_POSES,
+    direction: float = 1.0,
+) -> np.ndarray:
+    """Eyes once round ``centre [3]`` at a constant ``distance`` from it, ``elevation``
+    radians above its horizontal plane, the elevation swinging by ``wobble`` radians (two
+    slow cycles a loop; 0: a level ring), starting at azimuth ``phase``.
+
+    The turntable capture of object-centric photo sets (DTU, the Middlebury rings): every
+    eye is equally far from the object, so only the viewpoint changes round the loop."""
+    a = loop_parameter(n)
+    el = elevation + wobble * np.sin(2 * a + phase)
+    az = phase + direction * a
+    offsets = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
+    return np.asarray(centre, dtype=np.float64)[None] + distance * offsets
