@@ -201,6 +201,23 @@ def test_refine_keeps_the_budget_and_reports_its_fit(colmap_text, tmp_path, caps
     assert "input-view loss" in report
 
 
+def test_merge_flat_merges_what_was_placed_above_the_matching_size(colmap_text, tmp_path):
+    """--merge-flat: at 256 px the Gaussians are placed at twice the shipped generator's
+    128-px matching size, so flat 2x2 blocks merge; the report says how many, and the PLY
+    holds what the budget kept after the merge."""
+    import re
+
+    out = tmp_path / "out"
+    assert cli("reconstruct", colmap_text, "--out", out, "--size", "256", "--num-inputs", "2",
+               "--render", "none", "--merge-flat") == 0  # fmt: skip
+    report = (out / "report.md").read_text()
+    found = re.search(r"budget kept ([\d,]+) of ([\d,]+) \(([\d,]+) merged away", report)
+    assert found, report
+    kept, total, merged = (int(x.replace(",", "")) for x in found.groups())
+    assert merged > 0 and kept < total
+    assert len(read_ply(out / "gaussians.ply")) == kept
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
