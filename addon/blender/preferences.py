@@ -169,6 +169,12 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         name="Gaussian Budget", default=0, min=0,
         description="Most Gaussians a reconstruction keeps (0: automatic, lossless pruning only)",
     )  # fmt: skip
+    merge_flat: BoolProperty(
+        name="Merge Flat Blocks", default=runtime.Defaults.merge_flat,
+        description="Merge flat 2x2 blocks of Gaussians made above the generator's matching "
+        "size into one each: about a third fewer points at Input Size 512, at level quality, "
+        "for a lighter viewport and a smaller PLY; renders are not faster",
+    )  # fmt: skip
     refine_seconds: FloatProperty(
         name="Refine Seconds", default=runtime.Defaults.refine_seconds, min=0.0, soft_max=60.0,
         description="After reconstructing, fit the Gaussians to the input images for this many "
@@ -224,6 +230,7 @@ class ProSplatPreferences(bpy.types.AddonPreferences):
         col.prop(self, "enhance")
         col.prop(self, "fill_holes")
         col.prop(self, "budget")
+        col.prop(self, "merge_flat")
         col.prop(self, "refine_seconds")
         col.prop(self, "distill_steps")
         col.prop(self, "max_input_size")

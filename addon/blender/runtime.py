@@ -37,6 +37,7 @@ class Defaults:
     enhance: bool = True
     fill_holes: str = "RAW"  # BENCHMARKS "Raw views filled by default": why raw views only
     budget: int = 0
+    merge_flat: bool = False  # BENCHMARKS "Merging flat blocks": fewer points, views no faster
     refine_seconds: float = 3.0  # README, "Refinement": why this default
     distill_steps: int = 0  # README, "Consistent views": off, since it costs before frame one
     max_input_size: int = (

@@ -217,6 +217,7 @@ def reconstruct_job(
         "device": runtime.device_name(context),
         "weights": runtime.weights_path(context),
         "budget": int(p.budget if budget is None else budget) or None,
+        "merge_flat": bool(getattr(p, "merge_flat", False)),
         "max_size": int(p.max_input_size) or None,
         "refine_seconds": float(
             getattr(p, "refine_seconds", 0.0) if refine_seconds is None else refine_seconds

@@ -94,6 +94,7 @@ class PROSPLAT_PT_reconstruct(_Panel, bpy.types.Panel):
         p = runtime.prefs(context)
         if isinstance(p, bpy.types.AddonPreferences):
             layout.prop(p, "budget")
+            layout.prop(p, "merge_flat")
             layout.prop(p, "refine_seconds")
             layout.prop(p, "max_input_size")
         layout.prop(s, "view_choice")

@@ -206,6 +206,10 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
         0.35, f"running the generator on {len(cameras)} views{sweep}, then the Gaussian budget"
     )
     refining = any(b is not None for b in refine_budget)
+    from prosplat.geometry.merge import MergeOptions
+
+    # per job: the model is cached across jobs, so the switch is set (or cleared) every time
+    model.merge_flat = MergeOptions() if params.get("merge_flat") else None
     rec = model.reconstruct(
         images.to(device), cameras, params.get("near"), params.get("far"),
         budget=params.get("budget") or None,

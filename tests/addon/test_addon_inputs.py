@@ -150,6 +150,7 @@ def test_rgba_inputs_go_over_the_background(blank, tmp_path: Path) -> None:
     for colour in ((1.0, 1.0, 1.0), (0.0, 1.0, 0.0)):
         scene.prosplat.background = colour
         _, params = steps.reconstruct_job(coll, scene)
+        assert params["merge_flat"] is False  # the preference's default (opt-in)
         # what the generator is given: exactly the colour where the images are transparent
         images, _ = load_frames(params["frames"], Progress(), 0, 1, params["background"])
         left = images[:, :, :, : SIZE // 4].permute(1, 0, 2, 3).reshape(3, -1)

@@ -58,6 +58,7 @@ def test_preferences_default_without_enabling(blank) -> None:
 
     p = runtime.prefs()
     assert (p.device, p.enhance, p.budget, p.python_path) == ("AUTO", True, 0, "")
+    assert p.merge_flat is False  # opt-in: BENCHMARKS "Merging flat blocks"
     versions = requirements.requirement_versions()
     assert versions["numpy"] and "torch" in versions and "prosplat" in versions
 
@@ -110,7 +111,7 @@ assert res == {"FINISHED"} and name in bpy.context.preferences.addons, res
 assert hasattr(bpy.types.Scene, "prosplat") and hasattr(bpy.ops.prosplat, "reconstruct")
 import prosplat.worker.tasks  # the bundled wheel imports
 p = bpy.context.preferences.addons[name].preferences
-assert (p.device, p.budget) == ("AUTO", 0)
+assert (p.device, p.budget, p.merge_flat) == ("AUTO", 0, False)
 addon_utils.disable(name)
 assert not hasattr(bpy.types.Scene, "prosplat")
 addon_utils.enable(name)

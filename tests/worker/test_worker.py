@@ -460,3 +460,18 @@ def test_worker_process_honours_cancel_file(tmp_path: Path) -> None:
     paths_for(job)["cancel"].touch()
     code, status = _worker(job)
     assert (code, status["state"]) == (3, "cancelled") and not (tmp_path / "b.ply").exists()
+
+
+def test_merge_flat_is_a_per_job_switch(tmp_path: Path) -> None:
+    """``merge_flat``: at 256 px the Gaussians are placed at twice the generator's 128-px
+    matching size, so flat 2x2 blocks merge and the stats say how many; the cached model
+    keeps no switch from one job to the next (the next job without it merges nothing)."""
+    folder = tmp_path / "s"
+    cams = write_synthetic_scene(folder, size=256, n_views=3)
+    params = {"frames": _frames(folder, cams, [0, 2]), "device": "cpu", "near": 0.5,
+              "far": 10.0, "merge_flat": True}  # fmt: skip
+    merged = run_task("reconstruct", params)
+    assert merged["stats"]["merged"] > 0
+    assert merged["count"] == merged["stats"]["kept"] < merged["stats"]["input"]
+    plain = run_task("reconstruct", {**params, "merge_flat": False})
+    assert "merged" not in plain["stats"] and plain["count"] > merged["count"]
