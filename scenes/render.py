@@ -31,7 +31,7 @@ from prosplat.convert.nerfstudio import Frame, write_transforms
 from prosplat.core.camera import Camera
 from prosplat.core.image_io import write_depth
 from prosplat.data.overlap import overlap_matrix
-from prosplat.data.render_jobs import DEFAULT_SIZE, image_size
+from prosplat.data.render_jobs import DEFAULT_SIZE, argparse_type, image_size
 from prosplat.data.rigs import (
     arc_rig,
     choose_rig,
@@ -359,19 +359,6 @@ def save_blend(path: Path, template, frames: list[Frame]) -> None:
     bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True, compress=True)
 
 
-def _option(parse):
-    """An argparse ``type`` that reports ``parse``'s ``ValueError`` message as it is."""
-
-    def checked(text: str):
-        try:
-            return parse(text)
-        except ValueError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-
-    checked.__name__ = parse.__name__
-    return checked
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Render one seeded scene with Cycles (bpy).")
     ap.add_argument(
@@ -411,7 +398,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--roll",
-        type=_option(parse_roll),
+        type=argparse_type(parse_roll),
         default=0.0,
         metavar="DEG",
         help="roll each view's camera about its viewing axis by an angle drawn uniformly in "
@@ -419,7 +406,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--lens-range",
-        type=_option(parse_lens_range),
+        type=argparse_type(parse_lens_range),
         default=None,
         metavar="A-B",
         help="draw the scene's lens log-uniformly in [A, B] mm (36 mm sensor) from the seed "

@@ -21,6 +21,7 @@ from prosplat.data.render_jobs import (
     DEFAULT_SIZE,
     DENOISE_QUALITIES,
     MIN_SIZE,
+    argparse_type,
     image_size,
     read_answer,
     size_options,
@@ -69,20 +70,6 @@ def camera_options(roll: float, lens_range: tuple[float, float] | None) -> list[
     if lens_range is not None:
         out += ["--lens-range", f"{lens_range[0]!r}-{lens_range[1]!r}"]
     return out
-
-
-def _option(parse):
-    """An argparse ``type`` that reports ``parse``'s ``ValueError`` message as it is, so
-    ``--lens-range 85-24`` fails with "runs backwards", not "invalid value"."""
-
-    def checked(text: str):
-        try:
-            return parse(text)
-        except ValueError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
-
-    checked.__name__ = parse.__name__
-    return checked
 
 
 def cmd_scenes_render(args: argparse.Namespace) -> int:
@@ -339,7 +326,7 @@ def add_parser(sub) -> None:
     )
     rend.add_argument(
         "--roll",
-        type=_option(parse_roll),
+        type=argparse_type(parse_roll),
         default=0.0,
         metavar="DEG",
         help="roll each view's camera about its viewing axis by an angle drawn uniformly in "
@@ -348,7 +335,7 @@ def add_parser(sub) -> None:
     )
     rend.add_argument(
         "--lens-range",
-        type=_option(parse_lens_range),
+        type=argparse_type(parse_lens_range),
         default=None,
         metavar="A-B",
         help="draw each scene's lens log-uniformly in [A, B] mm (36 mm sensor), one per scene "

@@ -16,8 +16,10 @@ both sides, and :func:`size_options` writes the worker's options for a checked s
 
 from __future__ import annotations
 
+import argparse
 import json
 from collections import deque
+from collections.abc import Callable
 from typing import IO, Any
 
 DONE = "PROSPLAT_DONE "
@@ -70,3 +72,17 @@ def read_answer(stream: IO[str], keep: int = 15) -> tuple[dict[str, Any] | None,
                 return json.loads(line[at + len(marker) :]), list(tail)
         tail.append(line.rstrip("\n"))
     return None, list(tail)
+
+
+def argparse_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse ``type`` that reports ``parse``'s ``ValueError`` message as it is, so both
+    sides' ``--lens-range 85-24`` fail with "runs backwards", not "invalid value"."""
+
+    def checked(text: str):
+        try:
+            return parse(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    checked.__name__ = parse.__name__
+    return checked
