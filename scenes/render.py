@@ -31,14 +31,12 @@ from prosplat.convert.nerfstudio import Frame, write_transforms
 from prosplat.core.camera import Camera
 from prosplat.core.image_io import write_depth
 from prosplat.data.overlap import overlap_matrix
-from prosplat.data.render_jobs import DEFAULT_SIZE, argparse_type, image_size
+from prosplat.data.render_jobs import DEFAULT_SIZE, add_camera_arguments, image_size
 from prosplat.data.rigs import (
     arc_rig,
     choose_rig,
     draw_lens,
     draw_roll,
-    parse_lens_range,
-    parse_roll,
     roll_camera,
 )
 from prosplat.data.splits import split_of
@@ -396,22 +394,7 @@ def main(argv: list[str] | None = None) -> int:
         help="render N views evenly spaced over a quarter of the trajectory (a dense, overlapping "
         "sweep for structure from motion; --targets is ignored)",
     )
-    ap.add_argument(
-        "--roll",
-        type=argparse_type(parse_roll),
-        default=0.0,
-        metavar="DEG",
-        help="roll each view's camera about its viewing axis by an angle drawn uniformly in "
-        "[-DEG, DEG] (seeded per scene and view); default 0: level cameras",
-    )
-    ap.add_argument(
-        "--lens-range",
-        type=argparse_type(parse_lens_range),
-        default=None,
-        metavar="A-B",
-        help="draw the scene's lens log-uniformly in [A, B] mm (36 mm sensor) from the seed "
-        "instead of the scene's own (the camera path stays)",
-    )
+    add_camera_arguments(ap)
     args = ap.parse_args(argv)
     try:
         size = image_size(args.size, args.width, args.height)

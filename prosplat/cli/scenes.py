@@ -21,12 +21,11 @@ from prosplat.data.render_jobs import (
     DEFAULT_SIZE,
     DENOISE_QUALITIES,
     MIN_SIZE,
-    argparse_type,
+    add_camera_arguments,
     image_size,
     read_answer,
     size_options,
 )
-from prosplat.data.rigs import parse_lens_range, parse_roll
 from prosplat.data.scene_sets import SCENE_SETS, link_subset, parse_seeds
 from prosplat.data.splits import family_for_seed, split_of
 
@@ -324,23 +323,7 @@ def add_parser(sub) -> None:
         "inside_outside) or capture scene (object_ring: objects on a plain background "
         "ringed by cameras, like DTU); default: the seed's family",
     )
-    rend.add_argument(
-        "--roll",
-        type=argparse_type(parse_roll),
-        default=0.0,
-        metavar="DEG",
-        help="roll each view's camera about its viewing axis by an angle drawn uniformly in "
-        "[-DEG, DEG] degrees, seeded per scene and view, as hand-held photos are rarely level "
-        "(default 0: level cameras, as before)",
-    )
-    rend.add_argument(
-        "--lens-range",
-        type=argparse_type(parse_lens_range),
-        default=None,
-        metavar="A-B",
-        help="draw each scene's lens log-uniformly in [A, B] mm (36 mm sensor), one per scene "
-        "from its seed, e.g. 24-85; the camera path stays (default: the scene's own lens)",
-    )
+    add_camera_arguments(rend)
     rend.set_defaults(func=cmd_scenes_render)
     lst = scenes_sub.add_parser(
         "list",

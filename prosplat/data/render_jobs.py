@@ -86,3 +86,28 @@ def argparse_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
 
     checked.__name__ = parse.__name__
     return checked
+
+
+def add_camera_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--roll DEG`` and ``--lens-range A-B``, parsed and checked alike by ``prosplat scenes
+    render`` and by its Blender workers (:func:`prosplat.data.rigs.parse_roll`,
+    :func:`~prosplat.data.rigs.parse_lens_range`)."""
+    from prosplat.data.rigs import parse_lens_range, parse_roll
+
+    parser.add_argument(
+        "--roll",
+        type=argparse_type(parse_roll),
+        default=0.0,
+        metavar="DEG",
+        help="roll each view's camera about its viewing axis by an angle drawn uniformly in "
+        "[-DEG, DEG] degrees, seeded per scene and view, as hand-held photos are rarely level "
+        "(default 0: level cameras, as before)",
+    )
+    parser.add_argument(
+        "--lens-range",
+        type=argparse_type(parse_lens_range),
+        default=None,
+        metavar="A-B",
+        help="draw each scene's lens log-uniformly in [A, B] mm (36 mm sensor), one per scene "
+        "from its seed, e.g. 24-85; the camera path stays (default: the scene's own lens)",
+    )

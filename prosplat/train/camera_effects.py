@@ -20,7 +20,6 @@ the undivided batch (:func:`input_camera_effects`).
 
 from __future__ import annotations
 
-import hashlib
 import io
 import math
 import os
@@ -32,6 +31,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+from prosplat.train.common import seeded_generator
 
 if TYPE_CHECKING:
     from prosplat.train.generator_config import TrainConfig
@@ -265,13 +266,6 @@ def _apply(flat: Tensor, views: list[ViewEffects | None]) -> Tensor:
     return out
 
 
-def step_generator(seed: int, step: int) -> torch.Generator:
-    """The CPU generator of a training step's camera effects: its own stream, seeded by
-    (seed, step) like the step's crop (:func:`prosplat.train.batches.step_view`)."""
-    digest = hashlib.sha256(f"prosplat-camera/{seed}/{step}".encode()).digest()
-    return torch.Generator().manual_seed(int.from_bytes(digest[:8], "little") >> 1)
-
-
 def input_camera_effects(
     batch: dict[str, Tensor],
     cfg: TrainConfig,
@@ -292,7 +286,7 @@ def input_camera_effects(
     n = flat.shape[0]
     views = draw_view_effects(
         n * world_size,
-        step_generator(cfg.seed, step),
+        seeded_generator(f"prosplat-camera/{cfg.seed}/{step}"),
         cfg.camera_effects,
         effects or CameraEffects(),
     )

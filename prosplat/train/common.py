@@ -32,6 +32,7 @@ Step-indexed sampling
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -211,6 +212,15 @@ class Checkpoint:
     weights: dict[str, Tensor]
     state: dict[str, Any]
     weights_path: Path
+
+
+def seeded_generator(key: str) -> torch.Generator:
+    """A CPU ``torch.Generator`` seeded from the text ``key`` (its sha256), e.g.
+    ``"prosplat-camera/{seed}/{step}"``: each random draw of a training step gets a stream of
+    its own, the same on every platform and Python build (no ``hash()``), so switching one
+    augmentation on changes no other draw."""
+    digest = hashlib.sha256(key.encode()).digest()
+    return torch.Generator().manual_seed(int.from_bytes(digest[:8], "little") >> 1)
 
 
 def _prev_name(weights_name: str) -> str:

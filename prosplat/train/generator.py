@@ -84,6 +84,7 @@ from prosplat.train.common import (
     load_checkpoint,
     lr_at,
     save_checkpoint,
+    seeded_generator,
     setup_distributed,
     steps_per_epoch,
     truncate_log,
@@ -91,7 +92,7 @@ from prosplat.train.common import (
 from prosplat.train.ema import WeightAverage
 from prosplat.train.generator_config import TrainConfig
 from prosplat.train.losses import render_loss, render_views
-from prosplat.train.view_rotation import roll_generator, roll_views
+from prosplat.train.view_rotation import roll_views
 
 if TYPE_CHECKING:
     from prosplat.data import SceneDataset
@@ -312,7 +313,9 @@ def _train(cfg: TrainConfig, model_config, progress: bool, dist: Dist) -> Path:
             batch = to_device(batch, device)
             if cfg.size_choices:  # a size per step, seeded apart from the view count's draw
                 batch = step_view(batch, cfg, step)
-            batch = roll_views(batch, cfg.roll_prob, roll_generator(cfg.seed, step, dist.rank))
+            # each process turns its own part of the batch: its own stream by (seed, step, rank)
+            turns = seeded_generator(f"prosplat-roll/{cfg.seed}/{step}/{dist.rank}")
+            batch = roll_views(batch, cfg.roll_prob, turns)
             # the inputs only, at the step's pixel scale; the targets stay the clean truth
             batch = input_camera_effects(batch, cfg, step, dist.rank, dist.world_size)
             if pipe is not None:  # the size the weights are for: the largest drawn, else the data's

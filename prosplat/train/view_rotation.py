@@ -18,8 +18,6 @@ Pixel convention: continuous coordinates, pixel ``c`` spans ``[c, c+1)`` (as eve
 
 from __future__ import annotations
 
-import hashlib
-
 import torch
 from torch import Tensor
 
@@ -64,13 +62,6 @@ def draw_quarter_turns(n: int, prob: float, generator: torch.Generator) -> list[
     pick = torch.rand(n, generator=generator) < prob
     sign = torch.rand(n, generator=generator) < 0.5
     return [(1 if s else 3) if p else 0 for p, s in zip(pick.tolist(), sign.tolist())]
-
-
-def roll_generator(seed: int, step: int, rank: int = 0) -> torch.Generator:
-    """The CPU generator of a training step's quarter turns: its own stream, seeded by (seed,
-    step, rank): each process of a multi-GPU run turns its own part of the batch."""
-    digest = hashlib.sha256(f"prosplat-roll/{seed}/{step}/{rank}".encode()).digest()
-    return torch.Generator().manual_seed(int.from_bytes(digest[:8], "little") >> 1)
 
 
 def roll_views(
