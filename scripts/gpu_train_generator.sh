@@ -73,16 +73,20 @@ train() {  # NAME OUT OPTIONS... : one run, in the background
     --out "$out" "$@" > "$W/logs/$(basename "$out").log" 2>&1 &
 }
 # the probe: every run PROBE_STEPS steps at once, timed from its second log record (step 10)
-# on, after CUDA's warm-up
+# on, after CUDA's warm-up. Its first step takes 1.5-2 min on an H200 (the runs' first steps
+# after it take 2 s), so RATE=SECONDS (a step's time that an earlier call printed for the same
+# runs) skips it.
 probe=${PROBE_STEPS:-30}
-for i in "${!names[@]}"; do
-  rm -rf "$W/probe_${names[$i]}"
-  # shellcheck disable=SC2086  # OPTIONS is a list of words
-  train "${names[$i]}" "$W/probe_${names[$i]}" ${options[$i]} --steps "$probe" --log-every 5 \
-    --save-every 100000
-done
-wait
-rate=$($PY - "$W" "${names[@]}" <<'EOF'
+rate=${RATE:-}
+if [ -z "$rate" ]; then
+  for i in "${!names[@]}"; do
+    rm -rf "$W/probe_${names[$i]}"
+    # shellcheck disable=SC2086  # OPTIONS is a list of words
+    train "${names[$i]}" "$W/probe_${names[$i]}" ${options[$i]} --steps "$probe" --log-every 5 \
+      --save-every 100000
+  done
+  wait
+  rate=$($PY - "$W" "${names[@]}" <<'EOF'
 import json, sys
 rates = []
 for name in sys.argv[2:]:
@@ -91,7 +95,8 @@ for name in sys.argv[2:]:
     rates.append((b["seconds"] - a["seconds"]) / (b["step"] - a["step"]))
 print(max(rates))
 EOF
-)
+  )
+fi
 [ -n "$rate" ] || { tail -c 3000 "$W"/logs/probe_*.log; exit 1; }
 steps=$($PY -c "print(max(${MIN_STEPS:-50}, int(0.9 * ($(left) - 40) / $rate) // 50 * 50))")
 echo "probe: $rate s a step with ${#names[@]} runs; $steps steps each, $(left) s left"

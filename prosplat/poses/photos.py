@@ -19,7 +19,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
+
+from prosplat.poses.errors import require
+
+try:
+    import OpenImageIO as oiio
+except ImportError:  # a training-only machine: the readers and writers say what to install
+    oiio = None
 
 __all__ = [
     "PHOTO_EXTENSIONS",
@@ -95,6 +101,7 @@ def write_working_copy(src: Path, dst: Path, image_size: int) -> Photo:
     Raises:
         ValueError: the file cannot be read or decoded (the message names it and says why).
     """
+    require(oiio, "OpenImageIO")
     src, dst = Path(src), Path(dst)
     buf = oiio.ImageBuf(str(src))
     linear = src.suffix.lower() in _LINEAR
@@ -161,6 +168,7 @@ def write_rgb8(path: Path, rgb: np.ndarray, attributes: dict | None = None) -> N
     """Write ``rgb`` [H,W,3] uint8 to ``path`` (JPEG at quality 95 by its suffix), through a
     hidden sibling and a rename, so that no half-written image is ever seen (working copies
     and video frames are trusted by a resumed run). Raises OSError naming ``path``."""
+    require(oiio, "OpenImageIO")
     height, width = rgb.shape[:2]
     spec = oiio.ImageSpec(width, height, 3, oiio.UINT8)
     for name, value in (attributes or {}).items():

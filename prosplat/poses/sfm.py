@@ -46,14 +46,18 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pycolmap
+
+try:
+    import pycolmap
+except ImportError:  # a training-only machine: estimate_poses says what to install
+    pycolmap = None
 
 from prosplat.convert.colmap import read_colmap_model
 from prosplat.convert.distortion import Distortion
 from prosplat.convert.nerfstudio import Frame, write_transforms
 from prosplat.core.camera import Camera
 from prosplat.core.paths import staged_folder, write_text_atomic
-from prosplat.poses.errors import PoseCancelled, PoseError
+from prosplat.poses.errors import PoseCancelled, PoseError, require
 from prosplat.poses.frame import near_far, upright_similarity
 from prosplat.poses.photos import Photo, list_photos, working_names, write_working_copy
 from prosplat.poses.video import extract_frames, is_video
@@ -647,6 +651,7 @@ def estimate_poses(
         PoseCancelled: ``cancel()`` returned True; ``out`` is untouched.
         FileExistsError: ``out`` is a non-empty folder and ``overwrite`` is False.
     """
+    require(pycolmap, "pycolmap")
     options = options or PoseOptions()
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:

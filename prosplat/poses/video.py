@@ -16,10 +16,13 @@ from collections.abc import Callable
 from fractions import Fraction
 from pathlib import Path
 
-import av
+try:
+    import av
+except ImportError:  # a training-only machine: extract_frames says what to install
+    av = None
 import numpy as np
 
-from prosplat.poses.errors import PoseCancelled, PoseError
+from prosplat.poses.errors import PoseCancelled, PoseError, require
 from prosplat.poses.photos import write_rgb8
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm"})
@@ -57,6 +60,7 @@ def extract_frames(
     Frames of an earlier extraction into ``out_dir`` beyond this one's count are removed, so the
     folder holds exactly the returned frames.
     """
+    require(av, "av")
     video, out_dir = Path(video), Path(out_dir)
     if max_frames < 1:
         raise ValueError(f"max_frames must be at least 1, got {max_frames}")

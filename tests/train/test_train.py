@@ -17,6 +17,7 @@ from synthetic_scenes import write_synthetic_scene
 
 from prosplat import ProSplat, cli  # noqa: F401
 from prosplat.data import SceneDataset
+from prosplat.data.packed import pack_scenes
 from prosplat.train.common import (
     WEIGHTS_NAME,
     CheckpointError,
@@ -387,6 +388,34 @@ def test_torchrun_two_cpu_processes_equal_one_process_with_twice_the_batch(wide_
     ref = ProSplat.from_pretrained(one / WEIGHTS_NAME)
     for (k, a), b in zip(pipe.generator.state_dict().items(), ref.generator.state_dict().values()):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-5, msg=k)
+
+
+def test_training_runs_where_the_photo_libraries_are_missing(dataset, tmp_path):
+    """A lent GPU machine gets only the wheels scripts/gpu_* carry (no pycolmap, OpenImageIO,
+    PyAV): `prosplat train generator` still trains there from a pack (what those scripts
+    carry), and the poses step that needs them says what to install."""
+    blocked = "import sys; sys.modules.update(OpenImageIO=None, pycolmap=None, av=None); "
+    pack = pack_scenes(sorted(dataset.iterdir()), tmp_path / "train_000.npz")
+    out = tmp_path / "run"
+    args = [
+        "train", "generator", "--data", str(pack), "--steps", "1", "--inputs", "2",
+        "--targets", "1", "--lpips-weight", "0", "--warmup", "1", "--device", "cpu",
+        "--out", str(out),
+    ]  # fmt: skip
+    code = blocked + f"from prosplat.cli import main; main({args!r})"
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    run = subprocess.run(
+        [sys.executable, "-c", code], cwd=repo, env=env, capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert weights_step(out / WEIGHTS_NAME) == 1
+    code = blocked + "from prosplat.poses import estimate_poses; estimate_poses('x', 'y')"
+    run = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True
+    )
+    assert run.returncode != 0
+    assert "needs pycolmap, which this Python lacks: pip install pycolmap" in run.stderr
 
 
 def _log(run: Path) -> list[dict]:
