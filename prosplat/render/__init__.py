@@ -121,11 +121,13 @@ def render_pair(
     ``colour_opacities [N]`` (each at most its Gaussian's opacity), as two
     :class:`RenderOutput`. Why: a view that favours one input's colour
     (:func:`prosplat.pipeline.enhance.render_favouring`) needs both, and on the CPU the
-    projection is most of a render's time at artist sizes: here it runs once and only the
-    compositing twice. The same images as two :func:`render` calls: the pixel boxes of the
-    lower opacities lie inside those of the higher ones, and samples under 1/255 are skipped
-    either way. Opacities above the Gaussians' own (or another backend) take two renders.
-    ``max_radius``: as in :func:`render`, the widest Gaussians left out of both."""
+    projection is most of a render's time at artist sizes: here it runs once, and both
+    composites run as one pass that shares the binning and the exp of each sample
+    (:func:`prosplat.render.cpu.composite_pair`). The same images as two :func:`render` calls,
+    bitwise: the pixel boxes of the lower opacities lie inside those of the higher ones, and
+    samples under 1/255 are skipped either way. Opacities above the Gaussians' own (or
+    another backend) take two renders. ``max_radius``: as in :func:`render`, the widest
+    Gaussians left out of both."""
     if not isinstance(gaussians, Gaussians):
         raise ValueError(f"render expects prosplat.Gaussians, got {type(gaussians).__name__}")
     lower = colour_opacities.to(gaussians.opacities)
@@ -148,42 +150,71 @@ def render_pair(
     gaussians.validate()
     bg = _background(background, gaussians.means)
     proj, order = _project_cpu(gaussians, camera, backend == "cpu-fused", max_radius)
-    plain = _composite_cpu(proj, order, proj.opacities, camera, bg, gaussians.device)
-    colour = _composite_cpu(proj, order, lower.cpu(), camera, bg, gaussians.device)
-    return plain, colour
+    return _composite_pair_cpu(proj, order, lower.cpu(), camera, bg, gaussians.device)
 
 
 def _project_cpu(
     gaussians: Gaussians, camera: Camera, fused: bool, max_radius: float | None = None
-):
-    """The projection on the CPU and the front-to-back order of the Gaussians it draws: the
-    valid ones, less those wider than ``max_radius`` (whose ``valid`` turns False)."""
-    from prosplat.render.fused import project_gaussians_fused
+) -> tuple[ProjectedGaussians, Tensor]:
+    """The projection on the CPU and the front-to-back order [M] int64 of the Gaussians it
+    draws: the valid ones, less those wider than ``max_radius`` (whose ``valid`` turns False;
+    the fused kernel judges them itself)."""
+    from prosplat.render.fused import depth_order, project_gaussians_fused
 
     if gaussians.device.type != "cpu":
         gaussians = gaussians.to("cpu")
-    proj = (project_gaussians_fused if fused else project_gaussians)(gaussians, camera)
-    if max_radius is not None:
-        proj = dataclasses.replace(proj, valid=proj.valid & ~wider_than(proj, camera, max_radius))
-    idx = torch.nonzero(proj.valid).squeeze(1)
-    order = idx[torch.argsort(proj.depths.detach()[idx], stable=True)]
-    return proj, order
+    if fused:
+        proj = project_gaussians_fused(gaussians, camera, max_radius)
+    else:
+        proj = project_gaussians(gaussians, camera)
+        if max_radius is not None:
+            wide = wider_than(proj, camera, max_radius)  # [N]
+            proj = dataclasses.replace(proj, valid=proj.valid & ~wide)
+    return proj, depth_order(proj.depths, proj.valid)
+
+
+def _features(proj: ProjectedGaussians) -> Tensor:
+    """[N,4]: each Gaussian's colour and depth, the features the composite sums."""
+    return torch.cat([proj.colors, proj.depths[:, None]], dim=1)
 
 
 def _composite_cpu(proj, order, opacities: Tensor, camera: Camera, bg: Tensor, device):
     """A projection composited with ``opacities [N]`` over ``bg``, back on ``device``."""
     from prosplat.render.cpu import composite
 
-    bg = bg.cpu()
-    feats = torch.cat([proj.colors, proj.depths[:, None]], dim=1)  # [N,4]
     out, trans = composite(
-        proj.means2d, proj.conics, opacities, feats, proj.boxes, order, camera.width,
+        proj.means2d, proj.conics, opacities, _features(proj), proj.boxes, order, camera.width,
         camera.height,
     )  # fmt: skip
-    alpha = 1.0 - trans
-    rgb = out[:3] + trans[None] * bg[:, None, None]
-    depth = torch.where(alpha > 0, out[3] / alpha.clamp_min(1e-6), torch.zeros_like(alpha))
-    result = RenderOutput(rgb=rgb, alpha=alpha, depth=depth, visible=proj.valid)
+    return _finished(out, trans, proj.valid, bg, device)
+
+
+def _composite_pair_cpu(proj, order, lower: Tensor, camera: Camera, bg: Tensor, device):
+    """The projection composited with its own opacities and with ``lower [N]`` (at most
+    those) in one pass (:func:`prosplat.render.cpu.composite_pair`): two renders."""
+    from prosplat.render.cpu import composite_pair
+
+    out, trans, out_lo, trans_lo = composite_pair(
+        proj.means2d, proj.conics, proj.opacities, lower, _features(proj), proj.boxes, order,
+        camera.width, camera.height,
+    )  # fmt: skip
+    return (
+        _finished(out, trans, proj.valid, bg, device),
+        _finished(out_lo, trans_lo, proj.valid, bg, device),
+    )
+
+
+def _finished(out: Tensor, trans: Tensor, valid: Tensor, bg: Tensor, device) -> RenderOutput:
+    """A render from a composite's features [4,H,W] (colour, depth) and transmittance [H,W]:
+    the colour over ``bg`` [3], the alpha, the depth (0 where nothing is drawn), on ``device``.
+    One C++ pass where no gradient is needed, the torch twin otherwise (the same values)."""
+    from prosplat.render.cpu import finish, finish_reference
+
+    bg = bg.cpu()
+    grad = torch.is_grad_enabled() and any(x.requires_grad for x in (out, trans, bg))
+    fast = not grad and bg.dtype == out.dtype
+    rgb, alpha, depth = (finish if fast else finish_reference)(out, trans, bg)
+    result = RenderOutput(rgb=rgb, alpha=alpha, depth=depth, visible=valid)
     if device.type != "cpu":
-        result = RenderOutput(*(x.to(device) for x in (rgb, alpha, depth, proj.valid)))
+        result = RenderOutput(*(x.to(device) for x in (rgb, alpha, depth, valid)))
     return result

@@ -1,7 +1,9 @@
-// Tile-based alpha compositing of projected 2D Gaussians on the CPU: forward and backward.
+// Tile-based alpha compositing of projected 2D Gaussians on the CPU: forward (one stream or a
+// pair of opacity streams) and backward.
 //
-// Projection (EWA, SH colour) happens in torch so autograd covers it; this file only does
-// the part torch cannot do fast: per-pixel front-to-back compositing with early termination.
+// The projection is in torch or in _cpu_project.cpp (compiled into the same library); this
+// file does the part torch cannot do fast: per-pixel front-to-back compositing with early
+// termination.
 // Plain C ABI (no torch headers) so it compiles in about a second with any C++17 compiler
 // and is loaded with ctypes. Threads are std::thread over tiles (no OpenMP runtime to clash
 // with torch's).
@@ -12,7 +14,8 @@
 //   a pixel stops before the sample that would take its transmittance below 1e-4
 //   out[f] = sum_i w_i feat_i[f], w_i = alpha_i * T_i; T_final returned separately.
 // Each Gaussian carries an inclusive pixel box outside which alpha < 1/255 is guaranteed
-// (computed in Python from an opacity-aware radius), so culling never changes the image.
+// (from an opacity-aware radius: projection.pixel_boxes or its twin in _cpu_project.cpp), so
+// culling never changes the image.
 
 #include <algorithm>
 #include <atomic>
@@ -114,74 +117,120 @@ void parallel_tiles_static(int64_t n_tiles, int n_threads, Fn fn) {
   });
 }
 
-template <typename T>
+// S compositing streams of the same depth-sorted Gaussians that differ only in their
+// opacities (stream s reads opacities[s], writes out[s], out_trans[s], out_last[s]). The
+// binning, the box walk and the exp of each sample are shared; each stream keeps its own
+// accumulators and transmittance and stops on its own threshold. Every stream runs exactly
+// the arithmetic of a one-stream pass (the same exp value, the same products in the same
+// order), so a pair equals two separate composites bitwise. Why: a view that favours one
+// input (render_pair) composites one projection twice, and the exp is most of the work.
+template <typename T, int S>
 void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means2d, const T* conics,
-             const T* opacities, const T* feats, const int32_t* boxes, const int64_t* order, T* out,
-             T* out_trans, int32_t* out_last, int n_threads) {
+             const T* const* opacities, const T* feats, const int32_t* boxes, const int64_t* order,
+             T* const* out, T* const* out_trans, int32_t* const* out_last, int n_threads) {
   const TileLists tl = build_tile_lists(n_sorted, order, boxes, width, height);
   const int64_t n_pix = int64_t(width) * height;
   const T min_alpha = T(1) / T(255);
   parallel_tiles(int64_t(tl.tiles_x) * tl.tiles_y, n_threads, [&](int64_t tile, int) {
+    constexpr int kPix = kTile * kTile;
     const TileRect r = tile_rect(tl, tile, width, height);
     const int x0 = r.x0, y0 = r.y0, x1 = r.x1, y1 = r.y1;
-    T trans[kTile * kTile];
-    T acc[kTile * kTile * 8];
-    std::vector<T> acc_big;  // only when n_feat > 8
-    T* accp = acc;
-    if (n_feat > 8) {
-      acc_big.assign(size_t(kTile) * kTile * n_feat, T(0));
-      accp = acc_big.data();
-    } else {
-      std::fill(acc, acc + kTile * kTile * n_feat, T(0));
-    }
-    int32_t last[kTile * kTile];
-    bool done[kTile * kTile];
+    T trans[S][kPix];
+    T acc[S][kPix * 8];
+    std::vector<T> acc_big[S];  // only when n_feat > 8
+    T* accp[S];
+    int32_t last[S][kPix];
+    bool done[S][kPix];
+    bool all_done[kPix];  // every stream done: the sample is not evaluated at all
+    int n_active[S];
     const int n_local = r.size();
-    std::fill(trans, trans + kTile * kTile, T(1));
-    std::fill(last, last + kTile * kTile, 0);
-    std::fill(done, done + kTile * kTile, false);
-    int n_active = n_local;
+    for (int s = 0; s < S; ++s) {
+      accp[s] = acc[s];
+      if (n_feat > 8) {
+        acc_big[s].assign(size_t(kPix) * n_feat, T(0));
+        accp[s] = acc_big[s].data();
+      } else {
+        std::fill(acc[s], acc[s] + kPix * n_feat, T(0));
+      }
+      std::fill(trans[s], trans[s] + kPix, T(1));
+      std::fill(last[s], last[s] + kPix, 0);
+      std::fill(done[s], done[s] + kPix, false);
+      n_active[s] = n_local;
+    }
+    std::fill(all_done, all_done + kPix, false);
+    int n_any = n_local;  // pixels where some stream is still active
     const int64_t begin = tl.offsets[tile], end = tl.offsets[tile + 1];
-    for (int64_t k = begin; k < end && n_active > 0; ++k) {
+    for (int64_t k = begin; k < end && n_any > 0; ++k) {
       const int64_t g = tl.ids[k];
       const int32_t* b = boxes + 4 * g;
       const int bx0 = std::max<int>(b[0], x0), bx1 = std::min<int>(b[1], x1);
       const int by0 = std::max<int>(b[2], y0), by1 = std::min<int>(b[3], y1);
       const T mx = means2d[2 * g], my = means2d[2 * g + 1];
       const T ca = conics[3 * g], cb = conics[3 * g + 1], cc = conics[3 * g + 2];
-      const T op = opacities[g];
+      T op[S];
+      for (int s = 0; s < S; ++s) op[s] = opacities[s][g];
       const T* fg = feats + int64_t(n_feat) * g;
       for (int y = by0; y <= by1; ++y) {
         const T dy = T(y) + T(0.5) - my;
         for (int x = bx0; x <= bx1; ++x) {
           const int p = r.local(x, y);
-          if (done[p]) continue;
+          if (all_done[p]) continue;
           const T dx = T(x) + T(0.5) - mx;
-          const T power = gaussian_power(dx, dy, ca, cb, cc);
-          const T alpha = std::min(T(0.99), op * std::exp(power));
-          if (alpha < min_alpha) continue;
-          const T next_t = trans[p] * (T(1) - alpha);
-          if (next_t < T(1e-4)) {
-            done[p] = true;
-            --n_active;
-            continue;
+          const T gauss = std::exp(gaussian_power(dx, dy, ca, cb, cc));
+          for (int s = 0; s < S; ++s) {
+            if (done[s][p]) continue;
+            const T alpha = std::min(T(0.99), op[s] * gauss);
+            if (alpha < min_alpha) continue;
+            const T next_t = trans[s][p] * (T(1) - alpha);
+            if (next_t < T(1e-4)) {
+              done[s][p] = true;
+              --n_active[s];
+              bool all = true;
+              for (int u = 0; u < S; ++u) all = all && done[u][p];
+              if (all) {
+                all_done[p] = true;
+                --n_any;
+              }
+              continue;
+            }
+            const T w = alpha * trans[s][p];
+            T* ap = accp[s] + p * n_feat;
+            for (int f = 0; f < n_feat; ++f) ap[f] += w * fg[f];
+            trans[s][p] = next_t;
+            last[s][p] = int32_t(k - begin + 1);
           }
-          const T w = alpha * trans[p];
-          T* ap = accp + p * n_feat;
-          for (int f = 0; f < n_feat; ++f) ap[f] += w * fg[f];
-          trans[p] = next_t;
-          last[p] = int32_t(k - begin + 1);
         }
       }
     }
-    for (int y = y0; y <= y1; ++y)
-      for (int x = x0; x <= x1; ++x) {
-        const int p = r.local(x, y);
-        const int64_t pix = int64_t(y) * width + x;
-        for (int f = 0; f < n_feat; ++f) out[f * n_pix + pix] = accp[p * n_feat + f];
-        out_trans[pix] = trans[p];
-        out_last[pix] = last[p];
-      }
+    for (int s = 0; s < S; ++s)
+      for (int y = y0; y <= y1; ++y)
+        for (int x = x0; x <= x1; ++x) {
+          const int p = r.local(x, y);
+          const int64_t pix = int64_t(y) * width + x;
+          for (int f = 0; f < n_feat; ++f) out[s][f * n_pix + pix] = accp[s][p * n_feat + f];
+          out_trans[s][pix] = trans[s][p];
+          out_last[s][pix] = last[s][p];
+        }
+  });
+}
+
+// A render from a composite of colour and depth (out [4, n_pix], transmittance [n_pix]) over
+// the background bg [3]: rgb = out[0..3) + T·bg, alpha = 1 - T, depth = out[3] / max(alpha,
+// 1e-6) where alpha > 0, else 0. prosplat.render.cpu.finish_reference's torch operations one
+// by one, each rounded in T as torch rounds it (its scalars are T too), so the same values;
+// one pass over the pixels instead of ten.
+template <typename T>
+void finish(int64_t n_pix, const T* out, const T* trans, const T* bg, T* rgb, T* alpha, T* depth,
+            int n_threads) {
+  const int64_t chunk = 16384;
+  parallel_tiles((n_pix + chunk - 1) / chunk, n_threads, [&](int64_t c, int) {
+    for (int64_t i = c * chunk; i < std::min(n_pix, (c + 1) * chunk); ++i) {
+      const T t = trans[i];
+      for (int ch = 0; ch < 3; ++ch) rgb[ch * n_pix + i] = out[ch * n_pix + i] + t * bg[ch];
+      const T a = T(1) - t;
+      alpha[i] = a;
+      depth[i] = a > T(0) ? out[3 * n_pix + i] / std::max(a, T(1e-6)) : T(0);
+    }
   });
 }
 
@@ -280,166 +329,6 @@ void backward(int64_t n_sorted, int n_feat, int width, int height, const T* mean
 }
 
 
-// ---- EWA projection, fused (prosplat/render/projection.py is its twin) ----------------------
-// Per Gaussian, in double precision: camera-space mean, pixel mean, the 2D conic of
-// M Mᵀ + 0.3 I with M = J·R_cam·R_q·diag(s) (J at x/z, y/z clamped to 1.3x the field of
-// view), the dilated a, c (for the pixel boxes) and z. The backward pass recomputes the
-// forward per Gaussian and walks it back by hand. cam = R (9, row-major), t (3), fx, fy, cx,
-// cy, x/z low, x/z high, y/z low, y/z high, near, dilation.
-struct ProjCam {
-  double R[9], t[3], fx, fy, cx, cy, lox, hix, loy, hiy, near, dil;
-  explicit ProjCam(const double* c) {
-    for (int i = 0; i < 9; ++i) R[i] = c[i];
-    for (int i = 0; i < 3; ++i) t[i] = c[9 + i];
-    fx = c[12]; fy = c[13]; cx = c[14]; cy = c[15];
-    lox = c[16]; hix = c[17]; loy = c[18]; hiy = c[19]; near = c[20]; dil = c[21];
-  }
-};
-
-struct ProjState {
-  double x, y, z, inv_z, xz, yz, xzc, yzc, ux, uy;
-  bool front, inx, iny;
-  double qn[4], qlen, rq[3][3], v0[3], v1[3], P0[3], P1[3], r0[3], r1[3], s[3];
-  double a0, c0, b, k[3], det;
-};
-
-inline void proj_state(const ProjCam& c, const double* m, const double* q, const double* sc,
-                       ProjState& st) {
-  st.x = c.R[0] * m[0] + c.R[1] * m[1] + c.R[2] * m[2] + c.t[0];
-  st.y = c.R[3] * m[0] + c.R[4] * m[1] + c.R[5] * m[2] + c.t[1];
-  st.z = c.R[6] * m[0] + c.R[7] * m[1] + c.R[8] * m[2] + c.t[2];
-  st.front = st.z >= c.near;
-  st.inv_z = 1.0 / (st.front ? st.z : 1.0);
-  st.xz = st.x * st.inv_z;
-  st.yz = st.y * st.inv_z;
-  st.inx = st.xz >= c.lox && st.xz <= c.hix;
-  st.iny = st.yz >= c.loy && st.yz <= c.hiy;
-  st.xzc = std::min(std::max(st.xz, c.lox), c.hix);
-  st.yzc = std::min(std::max(st.yz, c.loy), c.hiy);
-  st.ux = c.fx * st.inv_z;
-  st.uy = c.fy * st.inv_z;
-  for (int k = 0; k < 3; ++k) {
-    st.v0[k] = st.ux * (c.R[k] - st.xzc * c.R[6 + k]);
-    st.v1[k] = st.uy * (c.R[3 + k] - st.yzc * c.R[6 + k]);
-  }
-  st.qlen = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-  for (int i = 0; i < 4; ++i) st.qn[i] = q[i] / st.qlen;
-  const double w = st.qn[0], x = st.qn[1], y = st.qn[2], z = st.qn[3];
-  st.rq[0][0] = 1 - 2 * (y * y + z * z); st.rq[0][1] = 2 * (x * y - w * z); st.rq[0][2] = 2 * (x * z + w * y);
-  st.rq[1][0] = 2 * (x * y + w * z); st.rq[1][1] = 1 - 2 * (x * x + z * z); st.rq[1][2] = 2 * (y * z - w * x);
-  st.rq[2][0] = 2 * (x * z - w * y); st.rq[2][1] = 2 * (y * z + w * x); st.rq[2][2] = 1 - 2 * (x * x + y * y);
-  for (int j = 0; j < 3; ++j) {
-    st.s[j] = sc[j];
-    st.P0[j] = st.v0[0] * st.rq[0][j] + st.v0[1] * st.rq[1][j] + st.v0[2] * st.rq[2][j];
-    st.P1[j] = st.v1[0] * st.rq[0][j] + st.v1[1] * st.rq[1][j] + st.v1[2] * st.rq[2][j];
-    st.r0[j] = st.P0[j] * st.s[j];
-    st.r1[j] = st.P1[j] * st.s[j];
-  }
-  st.a0 = st.r0[0] * st.r0[0] + st.r0[1] * st.r0[1] + st.r0[2] * st.r0[2];
-  st.c0 = st.r1[0] * st.r1[0] + st.r1[1] * st.r1[1] + st.r1[2] * st.r1[2];
-  st.b = st.r0[0] * st.r1[0] + st.r0[1] * st.r1[1] + st.r0[2] * st.r1[2];
-  st.k[0] = st.r0[1] * st.r1[2] - st.r0[2] * st.r1[1];
-  st.k[1] = st.r0[2] * st.r1[0] - st.r0[0] * st.r1[2];
-  st.k[2] = st.r0[0] * st.r1[1] - st.r0[1] * st.r1[0];
-  st.det = st.k[0] * st.k[0] + st.k[1] * st.k[1] + st.k[2] * st.k[2] + c.dil * (st.a0 + st.c0) +
-           c.dil * c.dil;
-}
-
-void project_forward(int64_t n, const double* means, const double* quats, const double* scales,
-                     const double* cam, double* means2d, double* conics, double* depth, double* ac,
-                     int n_threads) {
-  const ProjCam c(cam);
-  const int64_t chunk = 4096, n_chunks = (n + chunk - 1) / chunk;
-  parallel_tiles_static(n_chunks, n_threads, [&](int64_t ch, int) {
-    ProjState st;
-    for (int64_t g = ch * chunk; g < std::min(n, (ch + 1) * chunk); ++g) {
-      proj_state(c, means + 3 * g, quats + 4 * g, scales + 3 * g, st);
-      means2d[2 * g] = c.fx * st.xz + c.cx;
-      means2d[2 * g + 1] = c.fy * st.yz + c.cy;
-      const double a = st.a0 + c.dil, cc = st.c0 + c.dil, inv_det = 1.0 / st.det;
-      conics[3 * g] = cc * inv_det;
-      conics[3 * g + 1] = -st.b * inv_det;
-      conics[3 * g + 2] = a * inv_det;
-      depth[g] = st.z;
-      ac[2 * g] = a;
-      ac[2 * g + 1] = cc;
-    }
-  });
-}
-
-void project_backward(int64_t n, const double* means, const double* quats, const double* scales,
-                      const double* cam, const double* g_m2d, const double* g_con,
-                      const double* g_depth, double* g_means, double* g_quats, double* g_scales,
-                      int n_threads) {
-  const ProjCam c(cam);
-  const int64_t chunk = 4096, n_chunks = (n + chunk - 1) / chunk;
-  parallel_tiles_static(n_chunks, n_threads, [&](int64_t ch, int) {
-    ProjState st;
-    for (int64_t g = ch * chunk; g < std::min(n, (ch + 1) * chunk); ++g) {
-      proj_state(c, means + 3 * g, quats + 4 * g, scales + 3 * g, st);
-      const double a = st.a0 + c.dil, cc = st.c0 + c.dil, inv_det = 1.0 / st.det;
-      const double gA = g_con[3 * g], gB = g_con[3 * g + 1], gC = g_con[3 * g + 2];
-      // conic = (c, -b, a) / det
-      const double g_det = -(gA * cc - gB * st.b + gC * a) * inv_det * inv_det;
-      const double g_a0 = gC * inv_det + c.dil * g_det;
-      const double g_c0 = gA * inv_det + c.dil * g_det;
-      const double g_b = -gB * inv_det;
-      double gk[3];
-      for (int i = 0; i < 3; ++i) gk[i] = 2 * st.k[i] * g_det;
-      double gr0[3], gr1[3];
-      for (int j = 0; j < 3; ++j) {
-        gr0[j] = 2 * st.r0[j] * g_a0 + st.r1[j] * g_b;
-        gr1[j] = 2 * st.r1[j] * g_c0 + st.r0[j] * g_b;
-      }
-      // k0 = r0_1 r1_2 - r0_2 r1_1; k1 = r0_2 r1_0 - r0_0 r1_2; k2 = r0_0 r1_1 - r0_1 r1_0
-      gr0[1] += gk[0] * st.r1[2]; gr1[2] += gk[0] * st.r0[1];
-      gr0[2] -= gk[0] * st.r1[1]; gr1[1] -= gk[0] * st.r0[2];
-      gr0[2] += gk[1] * st.r1[0]; gr1[0] += gk[1] * st.r0[2];
-      gr0[0] -= gk[1] * st.r1[2]; gr1[2] -= gk[1] * st.r0[0];
-      gr0[0] += gk[2] * st.r1[1]; gr1[1] += gk[2] * st.r0[0];
-      gr0[1] -= gk[2] * st.r1[0]; gr1[0] -= gk[2] * st.r0[1];
-      double gv0[3] = {0, 0, 0}, gv1[3] = {0, 0, 0}, grq[3][3];
-      for (int j = 0; j < 3; ++j) {
-        g_scales[3 * g + j] = gr0[j] * st.P0[j] + gr1[j] * st.P1[j];
-        const double gP0 = gr0[j] * st.s[j], gP1 = gr1[j] * st.s[j];
-        for (int i = 0; i < 3; ++i) {
-          gv0[i] += gP0 * st.rq[i][j];
-          gv1[i] += gP1 * st.rq[i][j];
-          grq[i][j] = gP0 * st.v0[i] + gP1 * st.v1[i];
-        }
-      }
-      // v0_k = ux (R0k - xzc R2k), v1_k = uy (R1k - yzc R2k)
-      double g_ux = 0, g_uy = 0, g_xzc = 0, g_yzc = 0;
-      for (int k = 0; k < 3; ++k) {
-        g_ux += gv0[k] * (c.R[k] - st.xzc * c.R[6 + k]);
-        g_uy += gv1[k] * (c.R[3 + k] - st.yzc * c.R[6 + k]);
-        g_xzc -= gv0[k] * st.ux * c.R[6 + k];
-        g_yzc -= gv1[k] * st.uy * c.R[6 + k];
-      }
-      double g_xz = c.fx * g_m2d[2 * g] + (st.inx ? g_xzc : 0.0);
-      double g_yz = c.fy * g_m2d[2 * g + 1] + (st.iny ? g_yzc : 0.0);
-      double g_inv_z = c.fx * g_ux + c.fy * g_uy + g_xz * st.x + g_yz * st.y;
-      const double gx = g_xz * st.inv_z, gy = g_yz * st.inv_z;
-      double gz = g_depth[g] + (st.front ? -g_inv_z * st.inv_z * st.inv_z : 0.0);
-      for (int i = 0; i < 3; ++i)
-        g_means[3 * g + i] = c.R[i] * gx + c.R[3 + i] * gy + c.R[6 + i] * gz;
-      // rotation entries -> normalised quaternion -> quaternion
-      const double w = st.qn[0], x = st.qn[1], y = st.qn[2], z = st.qn[3];
-      const double (*G)[3] = grq;
-      double gq[4];
-      gq[0] = 2 * (-z * G[0][1] + y * G[0][2] + z * G[1][0] - x * G[1][2] - y * G[2][0] + x * G[2][1]);
-      gq[1] = 2 * (y * G[0][1] + z * G[0][2] + y * G[1][0] - 2 * x * G[1][1] - w * G[1][2] +
-                   z * G[2][0] + w * G[2][1] - 2 * x * G[2][2]);
-      gq[2] = 2 * (-2 * y * G[0][0] + x * G[0][1] + w * G[0][2] + x * G[1][0] + z * G[1][2] -
-                   w * G[2][0] + z * G[2][1] - 2 * y * G[2][2]);
-      gq[3] = 2 * (-2 * z * G[0][0] - w * G[0][1] + x * G[0][2] + w * G[1][0] - 2 * z * G[1][1] +
-                   y * G[1][2] + x * G[2][0] + y * G[2][1]);
-      const double dot = gq[0] * w + gq[1] * x + gq[2] * y + gq[3] * z;
-      for (int i = 0; i < 4; ++i) g_quats[4 * g + i] = (gq[i] - st.qn[i] * dot) / st.qlen;
-    }
-  });
-}
-
 }  // namespace
 
 #define PROSPLAT_EXPORT extern "C" __attribute__((visibility("default")))
@@ -449,8 +338,24 @@ void project_backward(int64_t n, const double* means, const double* quats, const
       int64_t n_sorted, int n_feat, int width, int height, const T* means2d, const T* conics,     \
       const T* opacities, const T* feats, const int32_t* boxes, const int64_t* order, T* out,     \
       T* out_trans, int32_t* out_last, int n_threads) {                                           \
-    forward<T>(n_sorted, n_feat, width, height, means2d, conics, opacities, feats, boxes, order, \
-               out, out_trans, out_last, n_threads);                                              \
+    const T* ops[1] = {opacities};                                                                \
+    T* outs[1] = {out};                                                                           \
+    T* transs[1] = {out_trans};                                                                   \
+    int32_t* lasts[1] = {out_last};                                                               \
+    forward<T, 1>(n_sorted, n_feat, width, height, means2d, conics, ops, feats, boxes, order,    \
+                  outs, transs, lasts, n_threads);                                                \
+  }                                                                                               \
+  PROSPLAT_EXPORT void prosplat_forward_pair_##SUFFIX(                                             \
+      int64_t n_sorted, int n_feat, int width, int height, const T* means2d, const T* conics,     \
+      const T* opacities_a, const T* opacities_b, const T* feats, const int32_t* boxes,           \
+      const int64_t* order, T* out_a, T* trans_a, int32_t* last_a, T* out_b, T* trans_b,          \
+      int32_t* last_b, int n_threads) {                                                           \
+    const T* ops[2] = {opacities_a, opacities_b};                                                 \
+    T* outs[2] = {out_a, out_b};                                                                  \
+    T* transs[2] = {trans_a, trans_b};                                                            \
+    int32_t* lasts[2] = {last_a, last_b};                                                         \
+    forward<T, 2>(n_sorted, n_feat, width, height, means2d, conics, ops, feats, boxes, order,    \
+                  outs, transs, lasts, n_threads);                                                \
   }                                                                                               \
   PROSPLAT_EXPORT void prosplat_backward_##SUFFIX(                                                 \
       int64_t n_sorted, int n_feat, int width, int height, const T* means2d, const T* conics,     \
@@ -461,23 +366,16 @@ void project_backward(int64_t n, const double* means, const double* quats, const
                 trans_final, last, grad_out, grad_trans, grads, n_gauss, n_threads);              \
   }
 
+#define PROSPLAT_DEFINE_FINISH(T, SUFFIX)                                                          \
+  PROSPLAT_EXPORT void prosplat_finish_##SUFFIX(int64_t n_pix, const T* out, const T* trans,       \
+                                                const T* bg, T* rgb, T* alpha, T* depth,          \
+                                                int n_threads) {                                  \
+    finish<T>(n_pix, out, trans, bg, rgb, alpha, depth, n_threads);                               \
+  }
+
+PROSPLAT_DEFINE_FINISH(float, f32)
+PROSPLAT_DEFINE_FINISH(double, f64)
 PROSPLAT_DEFINE(float, f32)
 PROSPLAT_DEFINE(double, f64)
 
-PROSPLAT_EXPORT void prosplat_project_forward_f64(int64_t n, const double* means,
-                                                  const double* quats, const double* scales,
-                                                  const double* cam, double* means2d,
-                                                  double* conics, double* depth, double* ac,
-                                                  int n_threads) {
-  project_forward(n, means, quats, scales, cam, means2d, conics, depth, ac, n_threads);
-}
-
-PROSPLAT_EXPORT void prosplat_project_backward_f64(
-    int64_t n, const double* means, const double* quats, const double* scales, const double* cam,
-    const double* g_m2d, const double* g_con, const double* g_depth, double* g_means,
-    double* g_quats, double* g_scales, int n_threads) {
-  project_backward(n, means, quats, scales, cam, g_m2d, g_con, g_depth, g_means, g_quats,
-                   g_scales, n_threads);
-}
-
-PROSPLAT_EXPORT int prosplat_abi_version() { return 1; }
+PROSPLAT_EXPORT int prosplat_abi_version() { return 2; }

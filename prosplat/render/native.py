@@ -1,7 +1,8 @@
-"""Build and load the C++ compositing kernels (``_cpu_kernels.cpp``) through ctypes.
+"""Build and load the C++ kernels (``_cpu_kernels.cpp``: compositing; ``_cpu_project.cpp``:
+the fused projection and the depth order) as one library through ctypes.
 
 The source has no torch headers, so it compiles in about a second with the system C++
-compiler on first use and is cached per source hash under ``$PROSPLAT_CACHE`` (default
+compiler on first use and is cached per hash of both sources under ``$PROSPLAT_CACHE`` (default
 ``~/.cache/prosplat``). Nothing is built at install time, so ``pip install`` never needs a
 compiler in an isolated build environment (which would pull a second torch).
 """
@@ -21,7 +22,7 @@ from pathlib import Path
 
 from prosplat.core.paths import cache_dir
 
-_SOURCE = Path(__file__).with_name("_cpu_kernels.cpp")
+_SOURCES = [Path(__file__).with_name(n) for n in ("_cpu_kernels.cpp", "_cpu_project.cpp")]
 _FLAGS = ["-O3", "-std=c++17", "-shared", "-fPIC", "-ffp-contract=off", "-pthread"]
 _lock = threading.Lock()
 _lib: ctypes.CDLL | None = None
@@ -39,7 +40,8 @@ def _compiler() -> str:
 
 
 def _library_path() -> Path:
-    digest = hashlib.sha256(_SOURCE.read_bytes() + " ".join(_FLAGS).encode()).hexdigest()[:16]
+    text = b"".join(s.read_bytes() for s in _SOURCES) + " ".join(_FLAGS).encode()
+    digest = hashlib.sha256(text).hexdigest()[:16]
     tag = f"{platform.system()}-{platform.machine()}".lower()
     suffix = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
     return cache_dir() / "kernels" / f"prosplat_cpu_{tag}_{digest}{suffix}"
@@ -49,7 +51,7 @@ def _build(target: Path) -> None:
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
         out = Path(tmp) / target.name
-        cmd = [_compiler(), *_FLAGS, str(_SOURCE), "-o", str(out)]
+        cmd = [_compiler(), *_FLAGS, *map(str, _SOURCES), "-o", str(out)]
         result = subprocess.run(cmd, capture_output=True, text=True)
         if result.returncode != 0:
             raise RuntimeError(
@@ -81,12 +83,22 @@ def _declare(lib: ctypes.CDLL) -> None:
         bwd = getattr(lib, f"prosplat_backward_{suffix}")
         bwd.argtypes = [i64, i32, i32, i32, p, p, p, p, p, p, p, p, p, p, p, i64, i32]
         bwd.restype = None
-    lib.prosplat_project_forward_f64.argtypes = [i64] + [p] * 8 + [i32]
-    lib.prosplat_project_forward_f64.restype = None
+        proj = getattr(lib, f"prosplat_project_forward_{suffix}")
+        proj.argtypes = [i64] + [p] * 12 + [i32]
+        proj.restype = None
+        order = getattr(lib, f"prosplat_depth_order_{suffix}")
+        order.argtypes = [i64, p, p, p]
+        order.restype = i64
+        pair = getattr(lib, f"prosplat_forward_pair_{suffix}")
+        pair.argtypes = [i64, i32, i32, i32] + [p] * 13 + [i32]
+        pair.restype = None
+        finish = getattr(lib, f"prosplat_finish_{suffix}")
+        finish.argtypes = [i64] + [p] * 6 + [i32]
+        finish.restype = None
     lib.prosplat_project_backward_f64.argtypes = [i64] + [p] * 10 + [i32]
     lib.prosplat_project_backward_f64.restype = None
     lib.prosplat_abi_version.restype = ctypes.c_int
-    if lib.prosplat_abi_version() != 1:
+    if lib.prosplat_abi_version() != 2:
         raise RuntimeError(
             "stale ProSplat kernel library; delete the cache folder " + str(cache_dir())
         )

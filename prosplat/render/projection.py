@@ -102,6 +102,17 @@ def view_directions(means: Tensor, center: Tensor) -> Tensor:
 
 
 @torch.no_grad()
+def box_radii_sq(opacities: Tensor) -> tuple[Tensor, Tensor]:
+    """The opacities [N] in float64 and r² = 2 ln(255 o) [N] float64, the squared Mahalanobis
+    radius inside which alpha can reach 1/255. Shared by :func:`pixel_boxes` and the fused
+    kernel (:mod:`prosplat.render.fused`), which takes r² from here because torch's log and
+    the C library's round differently in about 1 case in 10⁴, and the boxes must agree."""
+    o = opacities.detach().to(torch.float64)
+    r2 = (255.0 * o).clamp_min_(1.0).log_().mul_(2.0)  # in place: one [N] buffer, not four
+    return o, r2
+
+
+@torch.no_grad()
 def pixel_boxes(
     means2d: Tensor, a: Tensor, c: Tensor, in_front: Tensor, opacities: Tensor, W: int, H: int
 ) -> tuple[Tensor, Tensor]:
@@ -111,9 +122,8 @@ def pixel_boxes(
     f64 = torch.float64
     # alpha >= 1/255 needs dᵀ Σ⁻¹ d <= r² = 2 ln(255 o); that ellipse's half-widths are
     # r·sqrt(Σ_xx) and r·sqrt(Σ_yy). A small margin covers float32 rounding in the kernel.
-    o = opacities.detach().to(f64)
+    o, r2 = box_radii_sq(opacities)
     visible_o = o >= MIN_ALPHA
-    r2 = 2.0 * torch.log((255.0 * o).clamp_min(1.0))
     half_w = torch.sqrt(r2 * a) * (1 + 1e-4) + 1e-3
     half_h = torch.sqrt(r2 * c) * (1 + 1e-4) + 1e-3
     u, v = means2d[:, 0].detach().to(f64), means2d[:, 1].detach().to(f64)
