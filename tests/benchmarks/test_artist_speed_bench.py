@@ -19,6 +19,7 @@ def test_every_step_is_timed_against_its_target_and_written(tmp_path):
     assert (tmp_path / "speed.png").stat().st_size > 1000
     text = bench.table(result)
     assert text.count("\n| ") == 1 + len(bench.TARGETS) and "| target s |" in text
+    assert "| raw view, 64 px (warm) |" in text and "SIZE" not in text  # the size named
     cam = bench.scene_views(None, 64)[2]
     big = bench.hd(cam)
     assert (big.width, big.height) == (1920, 1080)
