@@ -1,5 +1,5 @@
 """Options several subcommands share: refinement's step count or time budget, and bounded
-whole numbers."""
+numbers."""
 
 from __future__ import annotations
 
@@ -18,6 +18,21 @@ def int_between(lo: int, hi: int):
             raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"must be {lo}-{hi}, got {value}")
+        return value
+
+    return parse
+
+
+def float_between(lo: float, hi: float):
+    """An argparse type: a finite number in [lo, hi], refused with a one-line usage error."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not lo <= value <= hi:  # NaN fails both comparisons
+            raise argparse.ArgumentTypeError(f"must be {lo:g}-{hi:g}, got {text}")
         return value
 
     return parse

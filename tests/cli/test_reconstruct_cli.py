@@ -218,6 +218,29 @@ def test_merge_flat_merges_what_was_placed_above_the_matching_size(colmap_text, 
     assert len(read_ply(out / "gaussians.ply")) == kept
 
 
+def test_cross_view_fade_zero_drops_what_another_input_saw_through(colmap_text, tmp_path, capsys):
+    """--cross-view-fade 0: the Gaussians another input saw through are dropped after the
+    budget; the report says how many and the PLY holds the rest. A value outside [0, 1] is a
+    one-line usage error before any work."""
+    import re
+
+    out = tmp_path / "out"
+    assert cli("reconstruct", colmap_text, "--out", out, "--size", "64", "--num-inputs", "3",
+               "--render", "none", "--cross-view-fade", "0") == 0  # fmt: skip
+    report = (out / "report.md").read_text()
+    found = re.search(r"budget kept ([\d,]+) of ([\d,]+); ([\d,]+) faded where another", report)
+    assert found, report
+    kept, total, faded = (int(x.replace(",", "")) for x in found.groups())
+    assert faded > 0 and kept < total
+    assert len(read_ply(out / "gaussians.ply")) == kept
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    with pytest.raises(SystemExit) as exit_:
+        cli("reconstruct", colmap_text, "--out", bad, "--cross-view-fade", "1.5")
+    assert exit_.value.code == 2 and "must be 0-1, got 1.5" in capsys.readouterr().err
+    assert not bad.exists()
+
+
 @pytest.mark.parametrize(
     ("flags", "message"),
     [

@@ -6,8 +6,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from prosplat import Camera
-from prosplat.geometry.consistency import cross_view_check
+from prosplat import Camera, Gaussians
+from prosplat.geometry.consistency import (
+    CrossViewOptions,
+    cross_view_check,
+    fade_contradicted,
+)
 from prosplat.geometry.pixel_gaussians import pixel_gaussians
 
 S = 32  # image size
@@ -148,3 +152,45 @@ def test_cameras_of_another_size_raise():
     cams = _cameras()
     with pytest.raises(ValueError, match="size"):
         cross_view_check(_depths(cams)[:, :16], cams)
+
+
+def _floater_scene():
+    """View 0 of the plane with 25 pixels moved to half their depth; every view's
+    pixel-aligned Gaussians, their view index and the floaters' mask."""
+    cams = _cameras()
+    depths = _depths(cams)
+    rows = torch.arange(12, 17).repeat_interleave(5)
+    cols = torch.arange(20, 25).repeat(5)
+    depths[0, rows, cols] *= 0.5
+    floaters = torch.zeros(3 * HW, dtype=torch.bool)
+    floaters[rows * S + cols] = True
+    images = torch.rand(3, 3, S, S, dtype=torch.float64)
+    g = [pixel_gaussians(images[i], depths[i], cams[i], footprint=0.5, opacity=0.9)
+         for i in range(3)]  # fmt: skip
+    return cams, depths, Gaussians.cat(g), torch.arange(3).repeat_interleave(HW), floaters
+
+
+def test_fading_multiplies_the_opacity_once_per_contradicting_view():
+    """fade_contradicted: opacity x fade**contradictions, exactly; the Gaussians no view
+    contradicts are untouched; fade 0 drops the contradicted ones instead."""
+    cams, depths, g, view_index, floaters = _floater_scene()
+    res = cross_view_check(depths, cams, 0.1, means=g.means, view_index=view_index)
+    assert torch.equal(res.contradictions > 0, floaters)  # both other views see them: 2 votes
+    faded, n = fade_contradicted(g, res, 0.3)
+    assert n == int(floaters.sum()) == 25 and len(faded) == len(g)
+    expected = g.opacities * torch.where(res.contradictions == 2, 0.09, 1.0).to(g.opacities)
+    torch.testing.assert_close(faded.opacities, expected)
+    assert torch.equal(faded.means, g.means) and torch.equal(faded.sh, g.sh)
+    dropped, n0 = fade_contradicted(g, res, 0.0)
+    assert n0 == 25 and len(dropped) == len(g) - 25
+    assert torch.equal(dropped.means, g.means[~floaters])
+    with pytest.raises(ValueError, match="the Gaussians are"):
+        fade_contradicted(g[:10], res, 0.3)
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"tau": 1.0}, {"tau": -0.1}, {"fade": 1.5}, {"fade": float("nan")}]
+)
+def test_cross_view_options_refuse_values_out_of_range(kwargs):
+    with pytest.raises(ValueError, match="must lie in"):
+        CrossViewOptions(**kwargs)

@@ -172,3 +172,50 @@ def test_merge_flat_runs_after_the_budget_and_keeps_the_reconstruction_consisten
         assert off.prune_stats == plain.prune_stats
     finally:
         model.merge_flat = default
+
+
+@pytest.mark.parametrize("budget", [None, "all"])
+def test_cross_view_fades_what_other_inputs_saw_through(model, scene, budget):
+    """With :attr:`ProSplat.cross_view` the Gaussians are checked against the other inputs'
+    depth (:func:`prosplat.geometry.consistency.cross_view_check` on the reconstruction's own
+    maps): those seen through fade by ``fade`` per view, the rest are untouched; ``fade=0``
+    drops them and the view index follows; the stats count them. Off by default."""
+    from prosplat.geometry.consistency import CrossViewOptions, cross_view_check
+
+    images, cams, _ = scene
+    plain = model.reconstruct(images, cams, NEAR, FAR, budget=budget, depth_scale=False)
+    full = model.reconstruct(images, cams, NEAR, FAR, budget="all", depth_scale=False)
+    assert model.cross_view is None  # opt-in
+    check = cross_view_check(plain.depths, plain.cameras, 0.1, means=plain.gaussians.means,
+                             view_index=plain.view_index)  # fmt: skip
+    seen_through = check.contradictions > 0
+    assert 0 < int(seen_through.sum()) < len(plain.gaussians)  # the check has work to do
+    try:
+        model.cross_view = CrossViewOptions(tau=0.1, fade=0.5)
+        rec = model.reconstruct(images, cams, NEAR, FAR, budget=budget, depth_scale=False)
+        assert len(rec.gaussians) == len(plain.gaussians)
+        factor = 0.5 ** check.contradictions.to(plain.gaussians.opacities)
+        torch.testing.assert_close(rec.gaussians.opacities, plain.gaussians.opacities * factor)
+        assert torch.equal(rec.gaussians.means, plain.gaussians.means)
+        assert rec.prune_stats["faded"] == int(seen_through.sum())
+        model.cross_view = CrossViewOptions(tau=0.1, fade=0.0)
+        dropped = model.reconstruct(images, cams, NEAR, FAR, budget=budget, depth_scale=False)
+        assert torch.equal(dropped.gaussians.means, plain.gaussians.means[~seen_through])
+        assert torch.equal(dropped.view_index, plain.view_index[~seen_through])
+        assert torch.equal(dropped.gaussians.views, dropped.view_index)
+        assert dropped.prune_stats["kept"] == len(dropped.gaussians)
+        if budget is None:  # the merge after it works on the survivors' pixel mask
+            g, keep, _ = prune_pixel_aligned(full.gaussians, full.depths, full.cameras)
+            assert_same_gaussians(g, plain.gaussians)
+            keep[torch.nonzero(keep).squeeze(1)[seen_through]] = False
+            options = MergeOptions(color_tol=0.1, depth_tol=0.05, above_scale=0)
+            want, want_index, _ = merge_flat(
+                g[~seen_through], keep, plain.depths, plain.cameras, options
+            )
+            model.merge_flat = options
+            both = model.reconstruct(images, cams, NEAR, FAR, depth_scale=False)
+            assert_same_gaussians(both.gaussians, want)
+            assert torch.equal(both.view_index, want_index)
+    finally:
+        model.cross_view = None
+        model.merge_flat = None
