@@ -541,7 +541,8 @@ class ProSplat:
         g, survive, stats = self._cross_checked(g, view_index, depths, gen_cameras, stats)
         if survive is not None:
             view_index = view_index[survive]
-        timings = {"generator": t1 - t0, "prune": time.perf_counter() - t1, "refine": 0.0}
+        checked_s = time.perf_counter() - t1 if self.cross_view is not None else 0.0
+        timings = {"generator": t1 - t0, "prune": checked_s, "refine": 0.0}
         return Reconstruction(g, gen_cameras, depths, view_index, stats, None, timings)
 
     def _pruned(
