@@ -14,10 +14,10 @@
    plot and ``report.md``.
 
 Blender renders at the model resolution (``--render-scale 1``, 256² by default) with 16 Cycles
-samples per pixel and its denoiser (``--denoise fast``): the ground truth is 38.6 dB from a
-128-sample render of the earlier tabletop demo scene (32.8 dB without the denoiser, which adds ~0.3 s to a
-view's ~3.5 s), far above any model's error, for a quarter of what 2x supersampling (512²)
-would cost. The generator matches the inputs at its trained size (``TRAINED_SIZE``, 128 px)
+samples per pixel and its denoiser (``--denoise fast``): on the earlier tabletop demo scene
+the ground truth is 38.6 dB from a 128-sample render (32.8 dB without the denoiser, which adds
+~0.3 s to a view's ~3.5 s), far above any model's error, for a quarter of what 2x
+supersampling (512²) would cost. The generator matches the inputs at its trained size (``TRAINED_SIZE``, 128 px)
 and places its Gaussians at the inputs' 256 px, as the pipeline runs it; matching at 256 px
 instead scored 0.45 dB lower on that tabletop.
 """

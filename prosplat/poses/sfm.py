@@ -147,7 +147,8 @@ def quiet_colmap(quiet: bool = True) -> None:
     """Keep COLMAP's own log (a line per step, on stderr) to errors only, or let it speak
     again. The command line and the worker call it: their bars and reports say the same in
     fewer lines. Process-wide (COLMAP's logger is global), so a library call leaves it be."""
-    pycolmap.logging.minloglevel = 2 if quiet else 0
+    if pycolmap is not None:  # without it no pose step runs (estimate_poses says so)
+        pycolmap.logging.minloglevel = 2 if quiet else 0
 
 
 def work_folder(out: str | Path) -> Path:

@@ -410,7 +410,10 @@ def test_training_runs_where_the_photo_libraries_are_missing(dataset, tmp_path):
     )
     assert run.returncode == 0, run.stderr[-3000:]
     assert weights_step(out / WEIGHTS_NAME) == 1
-    code = blocked + "from prosplat.poses import estimate_poses; estimate_poses('x', 'y')"
+    code = blocked + (
+        "from prosplat.poses import estimate_poses, quiet_colmap; quiet_colmap(); "
+        "estimate_poses('x', 'y')"
+    )
     run = subprocess.run(
         [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True
     )
