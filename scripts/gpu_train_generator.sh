@@ -18,6 +18,9 @@
 # logs.tgz (setup, gsplat build, probe and training logs).
 # gsplat renders every camera of a scene in one call (prosplat.render.gsplat_backend); without
 # it (a failed build) the renders go to the CPU rasterizer on the machine's cores.
+# RATE=SECONDS: the step time an earlier call printed for the same runs ("probe: S s a step");
+# it skips the probe, whose first step took 95-125 s on an H200 (2026-11-29; the runs' own
+# first steps after it 2 s). Two runs of batch 4 at 64/128 px: RATE=0.5.
 # Dry run elsewhere: PY=.venv/bin/python DEVICE=cpu GSPLAT=0 WORK=/tmp/g OUT=/tmp/o.
 set -uo pipefail
 budget=${1:?usage: gpu_train_generator.sh SECONDS NAME "OPTIONS" [NAME "OPTIONS" ...]}
