@@ -34,7 +34,7 @@ PACKAGE = ROOT / "prosplat"
 DATE = (2024, 1, 1, 0, 0, 0)  # fixed zip timestamps: reproducible builds
 REQUIRED = ("schema_version", "id", "version", "name", "tagline", "maintainer", "type",
             "blender_version_min", "license")  # fmt: skip
-PACKAGE_DATA = ("*.py", "render/*.cpp", "weights/*.safetensors")
+PACKAGE_DATA = ("*.py", "render/*.cpp", "render/*.h", "weights/*.safetensors")
 
 
 def check_manifest(manifest: dict) -> None:

@@ -8,34 +8,37 @@ import argparse
 from prosplat.pipeline.refine import RECOMMENDED_STEPS
 
 
-def int_between(lo: int, hi: int):
-    """An argparse type: a whole number in [lo, hi], refused with a one-line usage error."""
+def _between(cast, noun: str, lo, hi):
+    """An argparse type: ``cast(text)`` (a ``noun``) in [lo, hi], refused with a one-line
+    usage error."""
 
-    def parse(text: str) -> int:
+    def parse(text: str):
         try:
-            value = int(text)
+            value = cast(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"must be {lo}-{hi}, got {value}")
+            raise argparse.ArgumentTypeError(f"{text!r} is not {noun}") from None
+        if not lo <= value <= hi:  # NaN fails both comparisons
+            raise argparse.ArgumentTypeError(
+                f"must be {_shown(lo)}-{_shown(hi)}, got {_shown(value)}"
+            )
         return value
 
     return parse
+
+
+def _shown(x) -> str:
+    """A bound or value as the user would write it: 0-1, not 0.0-1.0; 65536, not 65536.0."""
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
+def int_between(lo: int, hi: int):
+    """An argparse type: a whole number in [lo, hi]."""
+    return _between(int, "a whole number", lo, hi)
 
 
 def float_between(lo: float, hi: float):
-    """An argparse type: a finite number in [lo, hi], refused with a one-line usage error."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not lo <= value <= hi:  # NaN fails both comparisons
-            raise argparse.ArgumentTypeError(f"must be {lo:g}-{hi:g}, got {text}")
-        return value
-
-    return parse
+    """An argparse type: a number in [lo, hi] (NaN refused)."""
+    return _between(float, "a number", lo, hi)
 
 
 def add_refine_arguments(parser: argparse.ArgumentParser, many: bool = False) -> None:

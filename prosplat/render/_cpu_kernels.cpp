@@ -18,13 +18,17 @@
 // culling never changes the image.
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstdint>
-#include <thread>
 #include <vector>
 
+#include "_cpu_parallel.h"
+
 namespace {
+
+using prosplat_cpu::parallel_chunks;
+using prosplat_cpu::parallel_tiles;
+using prosplat_cpu::parallel_tiles_static;
 
 constexpr int kTile = 16;
 
@@ -84,39 +88,6 @@ inline T gaussian_power(T dx, T dy, T ca, T cb, T cc) {
   return T(-0.5) * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
 }
 
-// Run worker(tid) for tid = 0..n_threads-1, worker 0 on the calling thread.
-template <typename Worker>
-void run_workers(int n_threads, Worker worker) {
-  if (n_threads == 1) {
-    worker(0);
-    return;
-  }
-  std::vector<std::thread> pool;
-  for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker, i);
-  worker(0);
-  for (auto& th : pool) th.join();
-}
-
-template <typename Fn>
-void parallel_tiles(int64_t n_tiles, int n_threads, Fn fn) {
-  n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
-  std::atomic<int64_t> next{0};
-  run_workers(n_threads, [&](int tid) {
-    for (int64_t t = next++; t < n_tiles; t = next++) fn(t, tid);
-  });
-}
-
-// Thread tid takes tiles tid, tid + n, tid + 2n, ...: a fixed split, so each thread's
-// gradient buffer sums the same tiles in the same order on every run (the backward pass is
-// then bitwise reproducible for a thread count, which seeded refinement relies on).
-template <typename Fn>
-void parallel_tiles_static(int64_t n_tiles, int n_threads, Fn fn) {
-  n_threads = std::max(1, std::min<int>(n_threads, int(n_tiles)));
-  run_workers(n_threads, [&](int tid) {
-    for (int64_t t = tid; t < n_tiles; t += n_threads) fn(t, tid);
-  });
-}
-
 // S compositing streams of the same depth-sorted Gaussians that differ only in their
 // opacities (stream s reads opacities[s], writes out[s], out_trans[s], out_last[s]). The
 // binning, the box walk and the exp of each sample are shared; each stream keeps its own
@@ -142,7 +113,6 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
     int32_t last[S][kPix];
     bool done[S][kPix];
     bool all_done[kPix];  // every stream done: the sample is not evaluated at all
-    int n_active[S];
     const int n_local = r.size();
     for (int s = 0; s < S; ++s) {
       accp[s] = acc[s];
@@ -155,7 +125,6 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
       std::fill(trans[s], trans[s] + kPix, T(1));
       std::fill(last[s], last[s] + kPix, 0);
       std::fill(done[s], done[s] + kPix, false);
-      n_active[s] = n_local;
     }
     std::fill(all_done, all_done + kPix, false);
     int n_any = n_local;  // pixels where some stream is still active
@@ -184,7 +153,6 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
             const T next_t = trans[s][p] * (T(1) - alpha);
             if (next_t < T(1e-4)) {
               done[s][p] = true;
-              --n_active[s];
               bool all = true;
               for (int u = 0; u < S; ++u) all = all && done[u][p];
               if (all) {
@@ -222,15 +190,12 @@ void forward(int64_t n_sorted, int n_feat, int width, int height, const T* means
 template <typename T>
 void finish(int64_t n_pix, const T* out, const T* trans, const T* bg, T* rgb, T* alpha, T* depth,
             int n_threads) {
-  const int64_t chunk = 16384;
-  parallel_tiles((n_pix + chunk - 1) / chunk, n_threads, [&](int64_t c, int) {
-    for (int64_t i = c * chunk; i < std::min(n_pix, (c + 1) * chunk); ++i) {
-      const T t = trans[i];
-      for (int ch = 0; ch < 3; ++ch) rgb[ch * n_pix + i] = out[ch * n_pix + i] + t * bg[ch];
-      const T a = T(1) - t;
-      alpha[i] = a;
-      depth[i] = a > T(0) ? out[3 * n_pix + i] / std::max(a, T(1e-6)) : T(0);
-    }
+  parallel_chunks(n_pix, 16384, n_threads, [&](int64_t i) {
+    const T t = trans[i];
+    for (int ch = 0; ch < 3; ++ch) rgb[ch * n_pix + i] = out[ch * n_pix + i] + t * bg[ch];
+    const T a = T(1) - t;
+    alpha[i] = a;
+    depth[i] = a > T(0) ? out[3 * n_pix + i] / std::max(a, T(1e-6)) : T(0);
   });
 }
 

@@ -12,25 +12,13 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <thread>
 #include <vector>
+
+#include "_cpu_parallel.h"
 
 namespace {
 
-// fn(g) for g in [0, n), in chunks of 4096 split statically over n_threads std::threads.
-template <typename Fn>
-void parallel_chunks(int64_t n, int n_threads, Fn fn) {
-  const int64_t chunk = 4096, n_chunks = (n + chunk - 1) / chunk;
-  n_threads = int(std::max<int64_t>(1, std::min<int64_t>(n_threads, n_chunks)));
-  auto worker = [&](int tid) {
-    for (int64_t ch = tid; ch < n_chunks; ch += n_threads)
-      for (int64_t g = ch * chunk; g < std::min(n, (ch + 1) * chunk); ++g) fn(g);
-  };
-  std::vector<std::thread> pool;
-  for (int i = 1; i < n_threads; ++i) pool.emplace_back(worker, i);
-  worker(0);
-  for (auto& th : pool) th.join();
-}
+using prosplat_cpu::parallel_chunks;
 
 // torch.clamp(x, lo, hi): NaN stays NaN.
 inline double clamp_nan(double x, double lo, double hi) {
@@ -145,7 +133,7 @@ void project_forward(int64_t n, const TI* means, const TI* quats, const TI* scal
                      int n_threads) {
   const ProjCam c(cam);
   const Frame f(frame);
-  parallel_chunks(n, n_threads, [&](int64_t g) {
+  parallel_chunks(n, 4096, n_threads, [&](int64_t g) {
     ProjState st;
     double m[3], q[4], sc[3];
     for (int i = 0; i < 3; ++i) m[i] = double(means[3 * g + i]), sc[i] = double(scales[3 * g + i]);
@@ -171,7 +159,7 @@ void project_backward(int64_t n, const double* means, const double* quats, const
                       const double* g_depth, double* g_means, double* g_quats, double* g_scales,
                       int n_threads) {
   const ProjCam c(cam);
-  parallel_chunks(n, n_threads, [&](int64_t g) {
+  parallel_chunks(n, 4096, n_threads, [&](int64_t g) {
     ProjState st;
     proj_state(c, means + 3 * g, quats + 4 * g, scales + 3 * g, st);
     const double a = st.a0 + c.dil, cc = st.c0 + c.dil, inv_det = 1.0 / st.det;

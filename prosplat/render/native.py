@@ -1,5 +1,6 @@
 """Build and load the C++ kernels (``_cpu_kernels.cpp``: compositing; ``_cpu_project.cpp``:
-the fused projection and the depth order) as one library through ctypes.
+the fused projection and the depth order; both include ``_cpu_parallel.h``, their thread
+helpers) as one library through ctypes.
 
 The source has no torch headers, so it compiles in about a second with the system C++
 compiler on first use and is cached per hash of both sources under ``$PROSPLAT_CACHE`` (default
@@ -23,6 +24,8 @@ from pathlib import Path
 from prosplat.core.paths import cache_dir
 
 _SOURCES = [Path(__file__).with_name(n) for n in ("_cpu_kernels.cpp", "_cpu_project.cpp")]
+#: what the sources include (the thread helpers): part of the cache hash, not compiled alone
+_HEADERS = [Path(__file__).with_name("_cpu_parallel.h")]
 _FLAGS = ["-O3", "-std=c++17", "-shared", "-fPIC", "-ffp-contract=off", "-pthread"]
 _lock = threading.Lock()
 _lib: ctypes.CDLL | None = None
@@ -40,7 +43,7 @@ def _compiler() -> str:
 
 
 def _library_path() -> Path:
-    text = b"".join(s.read_bytes() for s in _SOURCES) + " ".join(_FLAGS).encode()
+    text = b"".join(s.read_bytes() for s in _SOURCES + _HEADERS) + " ".join(_FLAGS).encode()
     digest = hashlib.sha256(text).hexdigest()[:16]
     tag = f"{platform.system()}-{platform.machine()}".lower()
     suffix = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"

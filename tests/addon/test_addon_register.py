@@ -97,7 +97,9 @@ def test_zip_layout_and_reproducible(built_zip: Path, tmp_path: Path) -> None:
     (tmp_path / "w.whl").write_bytes(wheel)
     with zipfile.ZipFile(tmp_path / "w.whl") as wf:
         assert "prosplat/worker/__main__.py" in wf.namelist()
-        assert "prosplat/render/_cpu_kernels.cpp" in wf.namelist()
+        # every file native.py compiles or includes: a missing one breaks the CPU renderer
+        kernels = {"_cpu_kernels.cpp", "_cpu_project.cpp", "_cpu_parallel.h"}
+        assert {f"prosplat/render/{k}" for k in kernels} <= set(wf.namelist())
     again = build_addon.build(tmp_path / "again")
     assert again.read_bytes() == built_zip.read_bytes()
 
