@@ -16,6 +16,8 @@
 #          float16, 5 MB instead of 10, widened back to float32 there)
 # SETS="NAME:VIEWS:SIZE:REFINE_STEPS ..." the curated sets (default raw64:2,3,4,6:64:0
 #   raw128:2,4:128:0; e.g. add ref64:2,4:64:300 for renders refined as `prosplat.pipeline.refine` does).
+# RATE=SECONDS: a step's time an earlier call printed ("probe: S s/step") skips the probe, whose
+#   first step costs ~100 s on a fresh machine (paid again by the run itself); batch 16: 0.104.
 # INIT= another stage 2 to start from (default: the shipped one; a file that travels too).
 # GENERATOR= the generator whose renders are curated (default: the shipped one; a candidate's
 #   .safetensors travels in the carry, e.g. under .gpu/). A warm machine reuses the sets an
@@ -81,18 +83,22 @@ failed=$(grep -L "curated set" "$W"/s2_logs/curate_*.log)
 [ -z "$failed" ] || echo "failed curations: $failed"
 
 init=${INIT:-prosplat/weights/improve_tiny.safetensors}  # the stage 2 to start from
-# the probe: 60 steps with the same options, timed between steps 20 and 60
-$PY -m prosplat train improve --device "$DEVICE" --data "$sets" --out "$W/s2_probe" --init "$init" \
-  --steps 60 --log-every 20 --save-every 60 "$@" > "$W/s2_logs/probe.log" 2>&1
-rate=$($PY - "$W/s2_probe/log.jsonl" <<'EOF'
+rate=${RATE:-}
+if [ -z "$rate" ]; then
+  # the probe: 60 steps with the same options, timed between steps 20 and 60
+  $PY -m prosplat train improve --device "$DEVICE" --data "$sets" --out "$W/s2_probe" --init "$init" \
+    --steps 60 --log-every 20 --save-every 60 "$@" > "$W/s2_logs/probe.log" 2>&1
+  rate=$($PY - "$W/s2_probe/log.jsonl" <<'EOF'
 import json, sys
 recs = [json.loads(line) for line in open(sys.argv[1]) if '"seconds"' in line]
 (a, b) = (recs[0], recs[-1])
 print((b["seconds"] - a["seconds"]) / (b["step"] - a["step"]))
 EOF
 )
+fi
 [ -n "$rate" ] || { tail -c 2000 "$W/s2_logs/probe.log"; exit 1; }
-steps=$($PY -c "print(max(${MIN_STEPS:-100}, int(0.8 * ($(left) - 45) / $rate) // 100 * 100))")
+warm=$([ -n "${RATE:-}" ] && echo 110 || echo 0)  # the run's own slow first step, which a probe paid
+steps=$($PY -c "print(max(${MIN_STEPS:-100}, int(0.85 * ($(left) - 45 - $warm) / $rate) // 100 * 100))")
 echo "probe: $rate s/step; training $steps steps with $(left) s left"
 limit=$(($(left) - 20))
 [ "$limit" -gt 60 ] || limit=60

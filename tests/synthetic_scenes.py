@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
+from torch import Tensor
 
 from prosplat import Gaussians, render
 from prosplat.convert.nerfstudio import Frame, write_transforms
+from prosplat.core.camera import Camera
 from prosplat.core.image_io import write_depth, write_image
 from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 
@@ -60,3 +63,33 @@ def orbit_scene_with_wrong_colours(n_views, size, inputs, noise, arc_deg=50.0):
     sh = start.sh + noise * torch.randn(start.sh.shape, generator=torch.Generator().manual_seed(0))
     start = Gaussians(start.means, start.quats, start.scales, start.opacities, sh)
     return dict(cams=cams, images=images, depths=depths, start=start)
+
+
+PLANE_Z, HALF_EXTENT, SIZE, FOCAL = 3.0, 2.0, 192, 200.0
+EYES = ((-0.4, 0.0, 0.0), (0.05, 0.1, 0.0), (0.4, -0.05, 0.0))  # 7-8 degrees apart at the plane
+
+
+def plane_texture(seed: int = 0) -> Tensor:
+    """[1,3,256,256] noise at three scales: blobs SIFT finds at every scale it looks."""
+    g = torch.Generator().manual_seed(seed)
+    tex = sum(
+        F.interpolate(torch.randn(1, 3, n, n, generator=g), size=256, mode="bicubic") / k
+        for n, k in ((8, 1.0), (32, 1.5), (96, 2.5))
+    )
+    return torch.sigmoid(1.5 * tex)
+
+
+def textured_plane_views() -> tuple[Tensor, list[Camera]]:
+    """Images [V,3,S,S] of the plane z = PLANE_Z (texture over |x|, |y| <= HALF_EXTENT) and
+    their cameras: each pixel centre's ray meets the plane where its colour is sampled."""
+    cams = [
+        Camera.look_at(e, (0.0, 0.0, PLANE_Z), (0.0, -1.0, 0.0), FOCAL, SIZE, SIZE) for e in EYES
+    ]
+    tex, images = plane_texture(), []
+    for cam in cams:
+        rays = cam.ray_directions(torch.float64)  # [S,S,3]
+        c = cam.center
+        hit = c + rays * ((PLANE_Z - c[2]) / rays[..., 2:])  # [S,S,3] on the plane
+        grid = (hit[..., :2] / HALF_EXTENT).float()[None]  # [1,S,S,2] in grid_sample's -1..1
+        images.append(F.grid_sample(tex, grid, mode="bilinear", align_corners=False)[0])
+    return torch.stack(images).clamp(0, 1), cams  # [V,3,S,S]

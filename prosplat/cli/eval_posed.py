@@ -84,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
                 )
             images, cameras = load_views(posed, chosen, size, background, progress=True)
             t_images, t_cams = load_views(target_set, targets, size, background, progress=True)
-            near, far, nf_source = near_far(posed, chosen, cameras, args.near, args.far)
+            near, far, nf_source = near_far(posed, chosen, cameras, args.near, args.far, images,
+                                            not args.no_triangulate)  # fmt: skip
             case_name = (name or "posed") + (f" set {k}" if len(sets) > 1 else "")
             cases.append(engine.PosedCase(images, cameras, t_images, t_cams, near, far, case_name))
             lines.append(f"{case_name}: inputs {', '.join(posed.views[i].name for i in chosen)}, "

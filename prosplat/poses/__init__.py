@@ -2,7 +2,8 @@
 
 A folder of photos, a list of photo files or a video becomes a pose folder (working copies,
 a COLMAP model, ``transforms.json``) in an upright frame at a sensible scale, which every
-posed-image reader of ProSplat opens. See :func:`estimate_poses`.
+posed-image reader of ProSplat opens. See :func:`estimate_poses`. Posed images without points
+get sparse points triangulated with their known poses: :func:`triangulate_inputs`.
 """
 
 from prosplat.poses.errors import PoseCancelled, PoseError
@@ -19,6 +20,7 @@ from prosplat.poses.sfm import (
     source_record,
     work_folder,
 )
+from prosplat.poses.triangulate import SparsePoints, triangulate_inputs
 from prosplat.poses.video import extract_frames, is_video
 
 __all__ = [
@@ -28,6 +30,7 @@ __all__ = [
     "PoseError",
     "PoseOptions",
     "PoseResult",
+    "SparsePoints",
     "estimate_poses",
     "extract_frames",
     "is_video",
@@ -36,5 +39,6 @@ __all__ = [
     "quiet_colmap",
     "reusable",
     "source_record",
+    "triangulate_inputs",
     "work_folder",
 ]

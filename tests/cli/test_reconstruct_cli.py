@@ -9,13 +9,14 @@ from pathlib import Path
 import pytest
 import torch
 from posed_data import scene_cameras, write_colmap_project, write_transforms_set
+from synthetic_scenes import textured_plane_views
 
 from prosplat import ProSplat, read_ply
 from prosplat.cli import build_parser
 from prosplat.cli.reconstruct import refine_kwargs
 from prosplat.convert.distortion import Distortion
-from prosplat.convert.nerfstudio import read_transforms
-from prosplat.core.image_io import read_image
+from prosplat.convert.nerfstudio import Frame, read_transforms, write_transforms
+from prosplat.core.image_io import read_image, write_image
 from prosplat.eval.posed import ROWS, PosedCase, input_sets, score_cases
 from prosplat.metrics import psnr
 from prosplat.pipeline.posed_views import load_posed_set, pick_views
@@ -93,6 +94,24 @@ def test_reconstruct_distorted_instant_ngp_transforms(tmp_path):
     assert names == sorted(f"{i:03d}_{k}.png" for i in range(4) for k in ("raw", "enhanced"))
     report = (out / "report.md").read_text()
     assert "opencv distortion, undistorted" in report and "the input cameras" in report
+
+
+def test_reconstruct_triangulates_a_set_without_near_far_or_points(tmp_path):
+    """A transforms.json set with neither near/far nor points (the textured plane at z = 3):
+    the report names the points triangulated from the inputs; --no-triangulate the cameras."""
+    images, cams = textured_plane_views()
+    (tmp_path / "set" / "images").mkdir(parents=True)
+    frames = []
+    for i, (img, cam) in enumerate(zip(images, cams, strict=True)):
+        write_image(tmp_path / "set" / "images" / f"{i}.png", img)
+        frames.append(Frame(cam, f"images/{i}.png", {}))
+    write_transforms(tmp_path / "set" / "transforms.json", frames, {})
+    for flag, source in (([], "points triangulated from the 3 inputs"),
+                         (["--no-triangulate"], "the input cameras")):  # fmt: skip
+        out = tmp_path / f"out{len(flag)}"
+        assert cli("reconstruct", tmp_path / "set", "--out", out, "--size", "64",
+                   "--render", "none", *flag) == 0  # fmt: skip
+        assert source in (out / "report.md").read_text()
 
 
 def _break(path: Path, how: str) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 from factories import random_gaussians
-from synthetic_scenes import write_synthetic_scene
+from synthetic_scenes import PLANE_Z, textured_plane_views, write_synthetic_scene
 
 from prosplat import Camera, Gaussians, read_ply, render, write_ply
 from prosplat.convert.colmap import ColmapImage, qvec_to_rotmat, write_colmap_text
@@ -215,6 +215,30 @@ def test_reconstruct_estimates_trust_from_three_views(scene) -> None:
     assert trust["views"] == [0, 1, 2] and len(trust["model_psnr"]) == 3
     assert (res["trust_warning"] is not None) == trust["loses_to_paste"]
     assert run_task("reconstruct", {**params, "trust_check": False})["trust"] is None
+
+
+def test_reconstruct_without_near_far_triangulates_the_inputs(tmp_path: Path) -> None:
+    """No near/far from the add-on: the inputs' own points give them (said in the progress and
+    the result), close around the textured plane at depth PLANE_Z; ``triangulate: False``
+    falls back to the cameras' estimate, several times wider."""
+    from prosplat.core.image_io import write_image
+
+    images, cams = textured_plane_views()
+    frames = []
+    for i, (img, cam) in enumerate(zip(images, cams, strict=True)):
+        write_image(tmp_path / f"{i}.png", img)
+        frames.append({"name": f"{i}", "image": str(tmp_path / f"{i}.png"),
+                       "camera": camera_to_blender_dict(cam)})  # fmt: skip
+    params = {"frames": frames, "device": "cpu", "budget": 2000, "trust_check": False}
+    seen: list[str] = []
+    res = run_task("reconstruct", params, Progress(lambda f, m: seen.append(m)))
+    near, far = res["near_far"]
+    assert "points triangulated from the 3 inputs" in res["near_far_source"]
+    assert any("triangulating the inputs" in m for m in seen)
+    assert 0.7 * PLANE_Z < near < PLANE_Z < far < 1.7 * PLANE_Z
+    plain = run_task("reconstruct", {**params, "triangulate": False})
+    assert plain["near_far_source"] == "the input cameras"
+    assert plain["near_far"][1] / plain["near_far"][0] > 2 * far / near
 
 
 def test_render_distills_the_views_into_one_set_of_gaussians(scene, tmp_path: Path) -> None:
