@@ -84,10 +84,14 @@ def run(args: argparse.Namespace) -> int:
                 )
             images, cameras = load_views(posed, chosen, size, background, progress=True)
             t_images, t_cams = load_views(target_set, targets, size, background, progress=True)
-            near, far, nf_source = near_far(posed, chosen, cameras, args.near, args.far, images,
-                                            not args.no_triangulate)  # fmt: skip
+            depth = near_far(
+                posed, chosen, cameras, args.near, args.far, images, not args.no_triangulate
+            )
+            near, far, nf_source = depth.near, depth.far, depth.source
+            anchors = None if args.no_anchors else depth.anchors
             case_name = (name or "posed") + (f" set {k}" if len(sets) > 1 else "")
-            cases.append(engine.PosedCase(images, cameras, t_images, t_cams, near, far, case_name))
+            cases.append(engine.PosedCase(images, cameras, t_images, t_cams, near, far, case_name,
+                                          anchors))  # fmt: skip
             lines.append(f"{case_name}: inputs {', '.join(posed.views[i].name for i in chosen)}, "
                          f"{len(targets)} targets, near/far {near:.3g}/{far:.3g}")  # fmt: skip
         budget = budget_arg(args.budget)
@@ -95,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
         rows = engine.score_cases(model, cases, budget=budget, background=background,
                            reconstruct_kwargs=kwargs, sheet=sheet,
                            other_views_opacity=args.other_views_opacity)  # fmt: skip
-        trust = [leave_one_out(model, c.images, c.cameras, c.near, c.far) for c in cases]
+        trust = [leave_one_out(model, c.images, c.cameras, c.near, c.far, anchors=c.anchors)
+                 for c in cases]  # fmt: skip
         trust_lines = [
             (f"{c.name}: " if len(cases) > 1 else "") + trust_line(t) for c, t in zip(cases, trust)
         ]

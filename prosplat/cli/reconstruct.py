@@ -125,6 +125,12 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--near", type=float, default=None, help="near depth (default: estimated)")
     p.add_argument("--far", type=float, default=None, help="far depth (default: estimated)")
     p.add_argument(
+        "--no-anchors",
+        action="store_true",
+        help="leave each input's depth as the generator made it, instead of scaling it to "
+        "agree with the points (COLMAP's or triangulated) that input observes",
+    )
+    p.add_argument(
         "--no-triangulate",
         action="store_true",
         help="estimate near/far from the cameras where the pose file brings no near/far or "
@@ -358,10 +364,9 @@ class ReconstructResult:
     trust: TrustEstimate | None = None
 
 
-def near_far(
-    posed, inputs: list[int], cameras, near, far, images=None, triangulate: bool = True
-) -> tuple[float, float, str]:
-    """near/far and where they came from (:func:`prosplat.pipeline.depth_range.depth_range`):
+def near_far(posed, inputs: list[int], cameras, near, far, images=None, triangulate: bool = True):
+    """The :class:`~prosplat.pipeline.depth_range.DepthRange` (near/far, where they came
+    from, the points) of :func:`prosplat.pipeline.depth_range.depth_range`:
     the flags, else the file's own near/far, else the COLMAP points the inputs observe, else
     points triangulated from ``images [V,3,H,W]`` (when given, ``triangulate`` and pycolmap),
     else :func:`~prosplat.geometry.rig.near_far_from_cameras`."""
@@ -372,12 +377,11 @@ def near_far(
         points = posed.points
         observed = [posed.observed.get(posed.views[i].name, torch.zeros(0, dtype=torch.long))
                     for i in inputs]  # fmt: skip
-    r = depth_range(
+    return depth_range(
         images, cameras, near=near, far=far, file_range=posed.file_near_far(inputs),
         file_name=posed.source.name, points=points, observed=observed,
         triangulate=triangulate and images is not None, given_name="--near/--far",
     )  # fmt: skip
-    return r.near, r.far, r.source
 
 
 def prepare(args: argparse.Namespace, keep_targets: int = 0):
@@ -459,8 +463,9 @@ def load_model(args: argparse.Namespace):
     return model
 
 
-def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
-    """(Gaussians, seconds, note): generator + budget pruning, then refinement when asked.
+def reconstruct_gaussians(model, images, cameras, near, far, args, anchors=None) -> tuple:
+    """(Gaussians, seconds, note): generator + budget pruning, then refinement when asked;
+    ``anchors`` (:class:`~prosplat.geometry.anchors.DepthAnchors`) scale each view's depth.
 
     ``--budget`` prunes in both cases (refinement fits only the Gaussians the budget keeps,
     :meth:`~prosplat.ProSplat.reconstruct`), and refinement shows a progress bar
@@ -475,8 +480,9 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
     # the flags were checked by run_reconstruct before any work (refine_kwargs); 0 is "off"
     steps, seconds = args.refine_steps or None, args.refine_seconds or None
     if steps is None and seconds is None:
-        rec = model.reconstruct(images, cameras, near, far, budget=budget)
-        return rec.gaussians, time.perf_counter() - t0, _kept_note(rec.prune_stats)
+        rec = model.reconstruct(images, cameras, near, far, budget=budget, anchors=anchors)
+        note = _kept_note(rec.prune_stats) + anchor_note(rec.anchor_fits)
+        return rec.gaussians, time.perf_counter() - t0, note
     # under a time budget the bar counts seconds, so it ends where the budget does
     total = steps if steps is not None else round(seconds, 1)
     unit = "step" if steps is not None else "s"
@@ -491,14 +497,25 @@ def reconstruct_gaussians(model, images, cameras, near, far, args) -> tuple:
 
         rec = model.reconstruct(
             images, cameras, near, far, budget=budget, refine_steps=steps,
-            refine_seconds=seconds, progress=progress,
+            refine_seconds=seconds, progress=progress, anchors=anchors,
         )  # fmt: skip
     st = rec.refine_stats
     note = (
         f"{_kept_note({**rec.prune_stats, 'kept': st.n_gaussians})}; refined {st.steps} steps "
         f"in {st.seconds:.1f} s, input-view loss {st.initial_loss:.4f} -> {st.final_loss:.4f}"
-    )
+    ) + anchor_note(rec.anchor_fits)
     return rec.gaussians.detach(), time.perf_counter() - t0, note
+
+
+def anchor_note(fits) -> str:
+    """'; depth scaled to the points in K of V views (x0.94, ...)', or '' without anchors."""
+    if not fits:
+        return ""
+    used = [f for f in fits if f.used]
+    factors = ", ".join(f"x{f.scale:.3f}" for f in used)
+    return f"; depth scaled to the points in {len(used)} of {len(fits)} views" + (
+        f" ({factors})" if used else ""
+    )
 
 
 def _kept_note(stats: dict) -> str:
@@ -573,17 +590,18 @@ def _reconstruct_into(out: Path, args: argparse.Namespace, photos=None) -> Recon
             f"{bg_text}; leave --fill-holes out (the background already fills the holes)"
         )
     images, cameras = load_views(posed, inputs, size, background, progress=True)
-    near, far, nf_source = near_far(posed, inputs, cameras, args.near, args.far, images,
-                                    not args.no_triangulate)  # fmt: skip
+    depth = near_far(posed, inputs, cameras, args.near, args.far, images, not args.no_triangulate)
+    near, far, nf_source = depth.near, depth.far, depth.source
+    anchors = None if args.no_anchors else depth.anchors
     names = [posed.views[i].name for i in inputs]
     print(
         f"reconstructing from {len(inputs)} views ({', '.join(names)}) at {size[0]}x{size[1]}, "
         f"near {near:.3g}, far {far:.3g} ({nf_source})"
     )
-    g, t_recon, note = reconstruct_gaussians(model, images, cameras, near, far, args)
+    g, t_recon, note = reconstruct_gaussians(model, images, cameras, near, far, args, anchors)
     trust = None
     if (which or path) and not getattr(args, "no_trust_check", False):
-        trust = leave_one_out(model, images, cameras, near, far)
+        trust = leave_one_out(model, images, cameras, near, far, anchors=anchors)
         if (message := trust.message()) is not None:
             print(message)
     out.mkdir(parents=True, exist_ok=True)

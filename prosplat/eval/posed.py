@@ -39,6 +39,7 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.eval.generator import Score, markdown_table, score_view, summarise
+from prosplat.geometry.anchors import DepthAnchors
 from prosplat.pipeline.enhance import OTHER_VIEWS_OPACITY
 from prosplat.render.hole_fill import fill_holes
 
@@ -61,7 +62,7 @@ SHEET_TARGETS = 8
 class PosedCase(NamedTuple):
     """One evaluation: input ``images [N,3,H,W]`` and ``cameras``, held-out
     ``target_images [T,3,H',W']`` and ``target_cameras``; near/far (None: estimated from the
-    cameras) and a name for the tables."""
+    cameras), a name for the tables and the depth anchors the inputs observe (None: none)."""
 
     images: Tensor
     cameras: Sequence[Camera]
@@ -70,6 +71,7 @@ class PosedCase(NamedTuple):
     near: float | None = None
     far: float | None = None
     name: str = "posed"
+    anchors: DepthAnchors | None = None
 
 
 def flat_prediction(images: Tensor, camera: Camera) -> Tensor:
@@ -116,12 +118,19 @@ def score_cases(
         images, cams = case.images, list(case.cameras)
         n = len(cams)
         t0 = time.perf_counter()
-        rec = model.reconstruct(images, cams, case.near, case.far, budget=budget)
+        rec = model.reconstruct(images, cams, case.near, case.far, budget=budget,
+                                anchors=case.anchors)  # fmt: skip
         recons = [("generator", "enhanced", rec.gaussians, time.perf_counter() - t0)]
         if reconstruct_kwargs:
             t0 = time.perf_counter()
             g = model.reconstruct(
-                images, cams, case.near, case.far, budget=budget, **reconstruct_kwargs
+                images,
+                cams,
+                case.near,
+                case.far,
+                budget=budget,
+                anchors=case.anchors,
+                **reconstruct_kwargs,
             ).gaussians  # the same budget as the generator's
             recons.append(("refined", "refined enhanced", g.detach(), time.perf_counter() - t0))
         for gt, cam in zip(case.target_images, case.target_cameras, strict=True):

@@ -1,16 +1,16 @@
-"""Depth anchors: each input's depth map aligned to sparse 3D points that view observes.
+"""Depth anchors: each input's depth map scaled to agree with the sparse 3D points it observes.
 
 Why (issue 68, item 3): a generator trained on rendered scenes gets the relative layout of a
-real photo roughly right but its depth scale and offset per view wrong, and views that disagree
-in scale double every surface (the doubled facades). Structure from motion, or triangulation
-of the inputs with their known poses (:func:`prosplat.poses.triangulate_inputs`), gives 3D
-points whose depth in each view is measured, not guessed. The generator's depth at those
-points is fitted to theirs by a robust affine map in inverse depth (the quantity the cost
-volume samples uniformly, and in which the generator's errors are closest to affine), and the
-map is applied to the whole view.
+real photo roughly right but each view's depth scale wrong, and views that disagree in scale
+double every surface (the doubled facades). Structure from motion, or triangulation of the
+inputs with their known poses (:func:`prosplat.poses.triangulate_inputs`), gives 3D points
+whose depth in each view is measured, not guessed. Each view's depth map is multiplied by the
+robust ratio of the points' depths to the map's at their pixels.
 
-A fit is kept only when it is trustworthy: enough points, a positive slope, the points'
-residual lower after it than before, and no pixel sent behind the camera.
+A scale, not an affine map: on four inputs the points cover a narrow band of depths (the
+object of a ring: 0.52-0.61 on the Middlebury temple), where a fitted shift is ill-posed (the
+slopes came out 0.08-0.23, flattening the object into a plane) while the ratio is stable
+(0.90-0.97). A fit is kept only when enough points agree and it lowers their error.
 """
 
 from __future__ import annotations
@@ -23,17 +23,40 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 
-__all__ = ["AnchorFit", "MIN_ANCHOR_POINTS", "anchor_depths", "fit_inverse_depth", "point_depths"]
+__all__ = [
+    "AnchorFit",
+    "DepthAnchors",
+    "MIN_ANCHOR_POINTS",
+    "anchor_depths",
+    "fit_scale",
+    "point_depths",
+]
 
 #: fewer points than this in a view leave its depth as the generator made it
 MIN_ANCHOR_POINTS = 12
-#: Huber threshold in units of the residuals' robust spread (1.4826 · MAD)
+#: Huber threshold in units of the log ratios' robust spread (1.4826 · MAD)
 HUBER_K = 1.345
 
 
 @dataclass(frozen=True)
+class DepthAnchors:
+    """Sparse 3D points the inputs observe: ``points [P,3]`` (world, float64) and
+    ``observed[v]`` (int64 indices into ``points``) per input view, or None when every point
+    in front of a view and inside it counts as observed."""
+
+    points: Tensor
+    observed: list[Tensor] | None = None
+
+    def views(self, indices: Sequence[int]) -> DepthAnchors:
+        """The anchors of a subset of the inputs (e.g. all but one, leave-one-out)."""
+        if self.observed is None:
+            return self
+        return DepthAnchors(self.points, [self.observed[i] for i in indices])
+
+
+@dataclass(frozen=True)
 class AnchorFit:
-    """One view's alignment: inverse depth ``1/z`` becomes ``scale / z + shift``.
+    """One view's alignment: depth ``z`` becomes ``scale · z``.
 
     Attributes:
         points: how many anchor points fell on the view's depth map.
@@ -43,7 +66,6 @@ class AnchorFit:
     """
 
     scale: float
-    shift: float
     points: int
     used: bool
     before: float
@@ -63,25 +85,17 @@ def point_depths(points: Tensor, camera: Camera, height: int, width: int) -> tup
     return idx, z[ok]
 
 
-def fit_inverse_depth(d_map: Tensor, d_pt: Tensor, iters: int = 10) -> tuple[float, float]:
-    """The robust affine map ``d_pt ≈ scale · d_map + shift`` between inverse depths ``[M]``:
-    iteratively reweighted least squares with Huber weights, started from the ratio of
-    medians (so one gross outlier cannot start it off). Float64 throughout."""
-    x, y = d_map.double(), d_pt.double()
-    a = float(y.median() / x.median().clamp_min(1e-12))
-    b = 0.0
+def fit_scale(z_map: Tensor, z_pt: Tensor, iters: int = 10) -> float:
+    """The robust factor ``s`` with ``z_pt ≈ s · z_map`` for depths ``[M]``: the Huber mean of
+    the log ratios by iteratively reweighted averaging, started from their median (so gross
+    outliers, SfM's wrong matches, cannot start it off). Float64 throughout."""
+    r = (z_pt.double() / z_map.double()).log()  # [M]
+    m = float(r.median())
+    spread = 1.4826 * float((r - m).abs().median()) + 1e-12
     for _ in range(iters):
-        res = y - (a * x + b)
-        spread = 1.4826 * float((res - res.median()).abs().median()) + 1e-12
-        w = (HUBER_K * spread / res.abs().clamp_min(1e-12)).clamp(max=1.0)  # [M] Huber
-        sw, sx, sy = w.sum(), (w * x).sum(), (w * y).sum()
-        sxx, sxy = (w * x * x).sum(), (w * x * y).sum()
-        det = sw * sxx - sx * sx
-        if float(det) <= 1e-18 * float(sw * sxx + 1e-30):
-            break  # all points at one depth: keep the ratio of medians
-        a = float((sw * sxy - sx * sy) / det)
-        b = float((sy - a * sx) / sw)
-    return a, b
+        w = (HUBER_K * spread / (r - m).abs().clamp_min(1e-12)).clamp(max=1.0)  # [M]
+        m = float((w * r).sum() / w.sum())
+    return float(torch.tensor(m).exp())
 
 
 def _median_rel(z_map: Tensor, z_pt: Tensor) -> float:
@@ -100,9 +114,8 @@ def anchor_depths(
     each view aligned to the ``points [P,3]`` it observes (``observed[v]``: indices into
     ``points``; None: every point in front of it and inside it), and the fit of each view.
 
-    Pixels without a depth (<= 0) stay at 0. A view keeps its depth when it has fewer than
-    ``min_points`` points, when the fitted slope is not positive, when the fit does not lower
-    the points' median relative error, or when it would send a pixel behind the camera.
+    A view keeps its depth when it has fewer than ``min_points`` points or when the factor
+    does not lower the points' median relative error.
     """
     v, h, w = depths.shape
     if len(cameras) != v:
@@ -116,17 +129,14 @@ def anchor_depths(
         ok = z_map > 0
         idx, z_pt, z_map = idx[ok], z_pt[ok], z_map[ok]
         n = len(idx)
+        before = _median_rel(z_map, z_pt) if n else float("nan")
         if n < min_points:
-            before = _median_rel(z_map, z_pt) if n else float("nan")
-            fits.append(AnchorFit(1.0, 0.0, n, False, before, before))
+            fits.append(AnchorFit(1.0, n, False, before, before))
             continue
-        a, b = fit_inverse_depth(1.0 / z_map, 1.0 / z_pt)
-        before = _median_rel(z_map, z_pt)
-        valid = depths[i] > 0
-        inv = a / depths[i].double().clamp_min(1e-12) + b  # [H,W]
-        after = _median_rel(1.0 / (a / z_map + b).clamp_min(1e-12), z_pt)
-        good = a > 0 and after < before and bool((inv[valid] > 0).all())
+        scale = fit_scale(z_map, z_pt)
+        after = _median_rel(scale * z_map, z_pt)
+        good = after < before
         if good:
-            out[i] = torch.where(valid, 1.0 / inv.clamp_min(1e-12), depths[i].double()).to(depths)
-        fits.append(AnchorFit(a, b, n, good, before, after if good else before))
+            out[i] = depths[i] * scale  # pixels without a depth (0) stay at 0
+        fits.append(AnchorFit(scale, n, good, before, after if good else before))
     return out, fits

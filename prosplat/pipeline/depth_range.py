@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from torch import Tensor
 
 from prosplat.core.camera import Camera
+from prosplat.geometry.anchors import DepthAnchors
 from prosplat.geometry.rig import near_far_from_cameras
 from prosplat.pipeline.posed_views import near_far_from_points
 
@@ -41,6 +42,12 @@ class DepthRange:
     source: str
     points: Tensor | None = None
     observed: list[Tensor] | None = None
+
+    @property
+    def anchors(self) -> DepthAnchors | None:
+        """The points as depth anchors for :meth:`prosplat.ProSplat.reconstruct` (None
+        without points)."""
+        return None if self.points is None else DepthAnchors(self.points, self.observed)
 
 
 def can_triangulate() -> bool:

@@ -29,13 +29,19 @@ from prosplat.core.gaussians import Gaussians
 from prosplat.core.image_io import check_images
 from prosplat.data.scene import resize_views, resized_width
 from prosplat.generator import TINY, Generator, GeneratorConfig, GeneratorOutput
+from prosplat.geometry.anchors import AnchorFit, DepthAnchors, anchor_depths
 from prosplat.geometry.budget import prune_pixel_aligned
 from prosplat.geometry.consistency import CrossViewOptions, cross_view_check, fade_contradicted
 from prosplat.geometry.depth_edges import EdgeOptions
 from prosplat.geometry.merge import MergeOptions, merge_flat
 from prosplat.geometry.pixel_gaussians import slide_gaussians
 from prosplat.geometry.rig import near_far_from_cameras
-from prosplat.pipeline.depth_sweep import DepthSweepOptions, scale_search, snap_output
+from prosplat.pipeline.depth_sweep import (
+    DepthSweepOptions,
+    scale_search,
+    slide_along_rays,
+    snap_output,
+)
 from prosplat.pipeline.edges import resolve_output
 from prosplat.pipeline.enhance import EnhancedView, render_view
 from prosplat.pipeline.reconstruction import Reconstruction
@@ -321,6 +327,7 @@ class ProSplat:
         generator_height: int | None = None,
         depth_scale: bool = True,
         grad: bool = False,
+        anchors: DepthAnchors | None = None,
     ) -> Reconstruction:
         """Reconstruct one scene: the generator, the Gaussian budget, then (when asked)
         refinement against the inputs; the one entry point for every way of doing it.
@@ -356,6 +363,11 @@ class ProSplat:
                 factor (:func:`prosplat.pipeline.depth_sweep.scale_search`); with a budget it
                 is searched on the budget's survivors and applied after the budget, so the
                 same Gaussians are kept with it and without it. False leaves it out.
+            anchors: sparse 3D points the inputs observe
+                (:class:`~prosplat.geometry.anchors.DepthAnchors`, e.g. ``depth_range(...).anchors``):
+                each view's depth is scaled to agree with its points before the depth sweep
+                (:func:`~prosplat.geometry.anchors.anchor_depths`; the fits land in
+                ``anchor_fits``). None: the generator's depth as it comes.
             grad: keep the generator's autograd graph in ``gaussians`` and ``depths``; only
                 with ``budget="all"`` and no refinement (pruning and refinement detach). For
                 the network's raw output use :meth:`run_generator`.
@@ -384,10 +396,22 @@ class ProSplat:
                 "grad=True keeps the generator's autograd graph, which the budget and refinement "
                 "drop: pass budget='all' without refinement, or use run_generator()"
             )
+        if anchors is not None and anchors.observed is not None:
+            if len(anchors.observed) != len(cameras):
+                raise ValueError(
+                    f"anchors observed by {len(anchors.observed)} views, but {len(cameras)} "
+                    "cameras: take anchors.views(indices) for a subset of the inputs"
+                )
+        fits: list[AnchorFit] = []
         if budget == "all":
-            rec = self._unpruned(images, cameras, near, far, generator_height, grad, depth_scale)
+            rec = self._unpruned(
+                images, cameras, near, far, generator_height, grad, depth_scale, anchors, fits
+            )
         else:
-            rec = self._pruned(images, cameras, near, far, budget, generator_height, depth_scale)
+            rec = self._pruned(
+                images, cameras, near, far, budget, generator_height, depth_scale, anchors, fits
+            )
+        rec.anchor_fits = fits
         return self._refined(rec, images, cameras, refine_steps, refine_seconds, refine_options,
                              seed, progress, cancel) if refining else rec  # fmt: skip
 
@@ -470,8 +494,9 @@ class ProSplat:
         return resize_views(images, cameras, height)
 
     def _generate(
-        self, images: Tensor, cameras, near, far, height, grad: bool, depth_scale: bool
-    ) -> tuple[GeneratorOutput, Tensor, list[Camera]]:
+        self, images: Tensor, cameras, near, far, height, grad: bool, depth_scale: bool,
+        anchors: DepthAnchors | None = None, fits: list | None = None,
+    ) -> tuple[GeneratorOutput, Tensor, list[Camera]]:  # fmt: skip
         """The generator as the pipeline runs it on inputs larger than ``height`` (None:
         :attr:`trained_size`; 0: the inputs' size): its output, the images at the size of its
         depth maps and the cameras its pixel-aligned Gaussians and depth maps belong to.
@@ -487,7 +512,9 @@ class ProSplat:
         and footprint gain from the full-size pixels (BENCHMARKS.md, "Gaussians at the inputs'
         size"). ``depth_scale``: the depth sweep also picks a scene-wide depth factor
         (:func:`prosplat.pipeline.depth_sweep.scale_search`); False leaves the local sweep
-        alone (:meth:`_pruned` applies the factor itself, after the budget).
+        alone (:meth:`_pruned` applies the factor itself, after the budget). ``anchors``:
+        each view's depth scaled to its points before the sweep (:meth:`_anchored`), the
+        fits appended to ``fits``.
         """
         cameras = list(cameras)
         height = self.trained_size if height is None else height
@@ -497,14 +524,32 @@ class ProSplat:
         ):
             gen_images, gen_cameras = self._generator_views(images, cameras, height)
             out = self._forward(gen_images, gen_cameras, near, far, grad=grad)
+            out = self._anchored(out, gen_cameras, anchors, fits)
             out = self._swept(out, gen_images, gen_cameras, depth_scale)
             return self._edged(out, gen_cameras, 1.0), gen_images, gen_cameras
         top = int(min(h, self.max_gaussian_scale * int(height))) // 32 * 32
         images, cameras = resize_views(images, cameras, top)  # unchanged when already there
         match = (int(height), resized_width(images.shape[-1], images.shape[-2], int(height)))
         out = self._forward(images, cameras, near, far, grad=grad, match_size=match)
+        out = self._anchored(out, cameras, anchors, fits)
         out = self._swept(out, images, cameras, depth_scale)
         return self._edged(out, cameras, top / int(height)), images, cameras
+
+    def _anchored(
+        self, out: GeneratorOutput, cameras: list[Camera], anchors: DepthAnchors | None,
+        fits: list | None,
+    ) -> GeneratorOutput:  # fmt: skip
+        """``out`` with each view's depth scaled to agree with the ``anchors`` it observes, its
+        Gaussians slid along their rays to match (unchanged without anchors)."""
+        if anchors is None:
+            return out
+        new, view_fits = anchor_depths(out.depths[0].detach(), cameras, anchors.points,
+                                       anchors.observed)  # fmt: skip
+        if fits is not None:
+            fits.extend(view_fits)
+        if not any(f.used for f in view_fits):
+            return out
+        return slide_along_rays(out, cameras, new)
 
     def _edged(self, out: GeneratorOutput, cameras: list[Camera], scale: float) -> GeneratorOutput:
         """``out`` with its depth edges resolved (:attr:`depth_edges`; unchanged when None);
@@ -526,11 +571,14 @@ class ProSplat:
         return snap_output(out, images.to(self.device), cameras, options)
 
     def _unpruned(
-        self, images: Tensor, cameras, near, far, height, grad: bool, depth_scale: bool
-    ) -> Reconstruction:
+        self, images: Tensor, cameras, near, far, height, grad: bool, depth_scale: bool,
+        anchors: DepthAnchors | None = None, fits: list | None = None,
+    ) -> Reconstruction:  # fmt: skip
         """:meth:`reconstruct` with ``budget="all"``: every Gaussian the generator places."""
         t0 = time.perf_counter()
-        out, _, gen_cameras = self._generate(images, cameras, near, far, height, grad, depth_scale)
+        out, _, gen_cameras = self._generate(
+            images, cameras, near, far, height, grad, depth_scale, anchors, fits
+        )
         g = out.gaussians(0)
         depths = out.depths[0]  # [V,h,w]
         v, h, w = depths.shape
@@ -546,8 +594,9 @@ class ProSplat:
         return Reconstruction(g, gen_cameras, depths, view_index, stats, None, timings)
 
     def _pruned(
-        self, images: Tensor, cameras, near, far, budget, height, depth_scale: bool
-    ) -> Reconstruction:
+        self, images: Tensor, cameras, near, far, budget, height, depth_scale: bool,
+        anchors: DepthAnchors | None = None, fits: list | None = None,
+    ) -> Reconstruction:  # fmt: skip
         """:meth:`reconstruct` up to the budget: the generator as the pipeline runs it, its
         pixel-aligned Gaussians pruned to ``budget`` with the cameras at the size it ran at,
         so no caller can pair the generator's depth maps with cameras of another size. The
@@ -556,7 +605,7 @@ class ProSplat:
         without it (refined and one-pass reconstructions keep one count)."""
         t0 = time.perf_counter()
         out, gen_images, gen_cameras = self._generate(
-            images, cameras, near, far, height, grad=False, depth_scale=False
+            images, cameras, near, far, height, False, False, anchors, fits
         )
         t1 = time.perf_counter()
         depths = out.depths[0].detach()

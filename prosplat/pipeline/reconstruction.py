@@ -14,6 +14,7 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
+from prosplat.geometry.anchors import AnchorFit
 from prosplat.pipeline.refine import RefineStats
 
 #: The parts :attr:`Reconstruction.timings` times, in the order they run (seconds; 0 for a
@@ -45,6 +46,9 @@ class Reconstruction:
             counting what is left.
         refine_stats: what refinement did (:class:`prosplat.pipeline.refine.RefineStats`), or
             None when the Gaussians were not refined.
+        anchor_fits: one :class:`~prosplat.geometry.anchors.AnchorFit` per input view when
+            ``reconstruct`` had anchors (each view's depth factor and the points' error before
+            and after), else empty.
         timings: seconds per part, keys :data:`TIMED_PARTS`: ``generator`` (with its depth
             sweep), ``prune`` (the budget, and the merge when on) and ``refine``.
     """
@@ -56,6 +60,7 @@ class Reconstruction:
     prune_stats: dict[str, int]
     refine_stats: RefineStats | None = None
     timings: dict[str, float] = field(default_factory=lambda: dict.fromkeys(TIMED_PARTS, 0.0))
+    anchor_fits: list[AnchorFit] = field(default_factory=list)
 
     def depths_for(self, images: Tensor) -> Tensor | None:
         """``depths`` when they match ``images [V,3,H,W]`` in size (refinement's depth term

@@ -27,6 +27,7 @@ from torch import Tensor
 
 from prosplat.core.camera import Camera
 from prosplat.data.scene import resize_views
+from prosplat.geometry.anchors import DepthAnchors
 from prosplat.metrics import psnr
 from prosplat.pipeline.enhance import pasted_view
 
@@ -102,6 +103,7 @@ def leave_one_out(
     height: int = TRUST_HEIGHT,
     max_views: int = 4,
     progress: Callable[[int, int], None] | None = None,
+    anchors: DepthAnchors | None = None,
 ) -> TrustEstimate:
     """Each of up to ``max_views`` inputs (evenly spread over ``images [V,3,H,W]``) left out:
     ``model`` (a :class:`~prosplat.ProSplat`) reconstructs the rest at ``height`` px and
@@ -111,7 +113,8 @@ def leave_one_out(
 
     Needs at least 3 inputs (2 remain to reconstruct from); with fewer the estimate is empty
     (``margin`` NaN, never a warning). ``progress(k, count)`` is called before the k-th
-    left-out input (a caller's progress bar; it may raise to cancel)."""
+    left-out input (a caller's progress bar; it may raise to cancel). ``anchors``: as in
+    :meth:`~prosplat.ProSplat.reconstruct`, the remaining views' own points each time."""
     cameras = list(cameras)
     v = len(cameras)
     if images.ndim != 4 or images.shape[0] != v:
@@ -131,7 +134,8 @@ def leave_one_out(
             progress(k, len(left))
         rest = [j for j in range(v) if j != i]
         rest_cams = [cameras[j] for j in rest]
-        rec = model.reconstruct(images[rest], rest_cams, near, far)
+        rest_anchors = None if anchors is None else anchors.views(rest)
+        rec = model.reconstruct(images[rest], rest_cams, near, far, anchors=rest_anchors)
         view = model.render(
             rec,
             cameras[i],

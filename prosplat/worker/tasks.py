@@ -210,7 +210,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
 
     # per job: the model is cached across jobs, so the switch is set (or cleared) every time
     model.merge_flat = MergeOptions() if params.get("merge_flat") else None
-    near, far, range_source = params.get("near"), params.get("far"), "given"
+    near, far, range_source, anchors = params.get("near"), params.get("far"), "given", None
     if near is None or far is None:  # the depth range from the inputs' own points, else cameras
         from prosplat.pipeline.depth_range import can_triangulate, depth_range
 
@@ -219,9 +219,11 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
             progress(0.33, "triangulating the inputs (SIFT) for the scene's depth range")
         r = depth_range(images, cameras, near=near, far=far, triangulate=triangulate)
         near, far, range_source = r.near, r.far, r.source
+        anchors = r.anchors if params.get("anchors", True) else None
     rec = model.reconstruct(
-        images.to(device), cameras, near, far, budget=params.get("budget") or None
-    )
+        images.to(device), cameras, near, far, budget=params.get("budget") or None,
+        anchors=anchors,
+    )  # fmt: skip
     gw, gh = rec.cameras[0].width, rec.cameras[0].height
     g, stats, t_gen = rec.gaussians.to("cpu"), rec.prune_stats, rec.timings["generator"]
     if len(g) == 0:
@@ -234,7 +236,8 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
             progress(0.5 + 0.25 * k / count,
                      f"leave-one-out {k + 1}/{count}: can the views beat the nearest photo?")  # fmt: skip
 
-        trust = leave_one_out(model, images.to(device), cameras, near, far, progress=step)
+        trust = leave_one_out(model, images.to(device), cameras, near, far, progress=step,
+                              anchors=anchors)  # fmt: skip
     t_refine = 0.0
     if refining:
         depths = rec.depths_for(images)
@@ -249,6 +252,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
     return {
         "count": len(g), "sh_degree": g.sh_degree, "stats": stats, "size": [w, h],
         "generator_size": [gw, gh], "near_far": [near, far], "near_far_source": range_source,
+        "anchored_views": sum(f.used for f in rec.anchor_fits),
         "seconds": {"generator": t_gen, "refine": t_refine, "total": time.perf_counter() - t0},
         "arrays": to_attributes(g), "views": [f.get("name") for f in frames], "view_reason": views,
         "generator": generator_info(model.generator),

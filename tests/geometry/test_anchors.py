@@ -8,7 +8,7 @@ import torch
 from torch import Tensor
 
 from prosplat.core.camera import Camera
-from prosplat.geometry.anchors import anchor_depths, fit_inverse_depth, point_depths
+from prosplat.geometry.anchors import anchor_depths, fit_scale, point_depths
 
 
 def plane_scene(h: int = 48, w: int = 64) -> tuple[Camera, Tensor, Tensor]:
@@ -28,13 +28,13 @@ def plane_scene(h: int = 48, w: int = 64) -> tuple[Camera, Tensor, Tensor]:
     return cam, depth, torch.stack([x, y, z], dim=-1)
 
 
-def test_fit_recovers_affine_map_despite_outliers():
+def test_fit_recovers_the_factor_despite_outliers():
     g = torch.Generator().manual_seed(1)
-    d = torch.rand(300, generator=g, dtype=torch.float64) + 0.2
-    y = 0.7 * d + 0.05
-    y[:30] += torch.rand(30, generator=g, dtype=torch.float64) * 2  # 10 % gross outliers
-    a, b = fit_inverse_depth(d, y)
-    assert abs(a - 0.7) < 1e-3 and abs(b - 0.05) < 1e-3
+    z = torch.rand(300, generator=g, dtype=torch.float64) * 3 + 1
+    z_pt = 0.8 * z * (1 + 0.002 * torch.randn(300, generator=g, dtype=torch.float64))
+    z_pt[:40] *= torch.rand(40, generator=g, dtype=torch.float64) * 3 + 1.2  # 13 % outliers
+    assert abs(fit_scale(z, z_pt) - 0.8) < 0.003
+    assert abs((z_pt / z).mean() - 0.8) > 0.1  # a plain mean would be far off
 
 
 def test_point_depths_land_on_their_pixels():
@@ -47,16 +47,15 @@ def test_point_depths_land_on_their_pixels():
     assert int(idx2.max()) < 24 * 32 and torch.equal(z2, z)
 
 
-def test_anchor_depths_undo_a_wrong_scale_and_offset():
+def test_anchor_depths_undo_a_wrong_scale():
     cam, depth, pts = plane_scene()
-    wrong = 1.0 / (1.3 / depth + 0.04)  # the generator's view: off by an inverse-depth affine map
+    wrong = depth / 1.3  # the generator's view: 30 % too near
     pts = pts.clone()
     pts[:15] *= 1.6  # outliers along their rays: wrong depth, same pixel
     out, fits = anchor_depths(wrong[None].float(), [cam], pts)
     assert fits[0].used and fits[0].points == 200
-    assert fits[0].before > 0.05 and fits[0].after < 1e-3
-    rel = ((out[0].double() - depth).abs() / depth).max()
-    assert rel < 1e-3
+    assert fits[0].before > 0.2 and fits[0].after < 1e-3
+    assert ((out[0].double() - depth).abs() / depth).max() < 1e-3
 
 
 def test_views_without_enough_trustworthy_points_are_left_alone():
@@ -64,11 +63,12 @@ def test_views_without_enough_trustworthy_points_are_left_alone():
     d = depth[None].float()
     out, fits = anchor_depths(d, [cam], pts[:5])  # too few
     assert not fits[0].used and torch.equal(out, d)
-    # points whose inverse depth falls where the map's rises: a negative slope is no alignment
-    z = pts[:, 2]
-    flipped = pts * ((1.0 / (0.6 - 1.0 / z)) / z)[:, None]  # same pixels, depths reversed
-    out, fits = anchor_depths(d, [cam], flipped)
-    assert fits[0].scale < 0 and not fits[0].used and torch.equal(out, d)
+    # a third each at half, the same and twice the depth: the factor stays 1, which does not
+    # lower their error, so none is applied
+    k = torch.tensor([0.5, 1.0, 2.0], dtype=torch.float64)[torch.arange(len(pts)) % 3]
+    spread = pts * k[:, None]
+    out, fits = anchor_depths(d, [cam], spread)
+    assert abs(fits[0].scale - 1) < 0.05 and not fits[0].used and torch.equal(out, d)
     # observed indices restrict a view to its own points
     out, fits = anchor_depths(d, [cam], pts, [torch.arange(8)])
     assert fits[0].points == 8 and not fits[0].used
