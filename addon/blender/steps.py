@@ -248,14 +248,20 @@ def apply_gaussians(result: dict, name: str, collection, inputs=None):
 
 def describe_reconstruct(result: dict) -> str:
     """One line: Gaussians made (and by which DepthSplat, if one), views used and why, time,
-    and the leave-one-out warning when showing the nearest photo would beat the views."""
+    the depth range's source when the inputs' own points gave it (and how many views their
+    depth was scaled in), and the leave-one-out warning when showing the nearest photo would
+    beat the views."""
     st, secs = result.get("stats", {}), result.get("seconds", {})
     refined = f", refined {secs['refine']:.1f} s" if secs.get("refine") else ""
     why = f"; views: {result['view_reason']}" if result.get("view_reason") else ""
     by = depthsplat_file.describe_generator(result.get("generator"))
     warn = f"; {result['trust_warning']}" if result.get("trust_warning") else ""
+    source = str(result.get("near_far_source", ""))
+    depth = f"; depth range from {source}" if "points" in source else ""
+    if depth and result.get("anchored_views"):
+        depth += f", depth scaled to them in {result['anchored_views']} views"
     return (f"reconstructed {result['count']:,} Gaussians{by} ({st.get('input', 0):,} before "
-            f"pruning{refined}) in {secs.get('total', 0):.1f} s{why}{warn}")  # fmt: skip
+            f"pruning{refined}) in {secs.get('total', 0):.1f} s{why}{depth}{warn}")  # fmt: skip
 
 
 # ---- PLY --------------------------------------------------------------------------------------

@@ -88,6 +88,13 @@ def test_view_choice_at_most_max_views_and_the_override(blank, tmp_path: Path) -
     why = result["view_reason"]
     assert "6 spread widely over the 8 of 8 views that see the region of interest" in why
     assert "views: 6 spread" in steps.describe_reconstruct(result)
+    tri = {**result, "near_far_source": "71 points triangulated from the 4 inputs (0.5 s)",
+           "anchored_views": 3}  # fmt: skip
+    line = steps.describe_reconstruct(tri)
+    assert "; depth range from 71 points triangulated from the 4 inputs (0.5 s), depth " in line
+    assert "scaled to them in 3 views" in line
+    plain = {**result, "near_far_source": "the input cameras", "anchored_views": 0}
+    assert "depth range" not in steps.describe_reconstruct(plain)
     assert ", ".join(used) in result["view_reason"]
 
     # the artist's override: unchecked cameras are never used; few enough -> exactly those
