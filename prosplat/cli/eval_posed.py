@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                 posed, chosen, cameras, args.near, args.far, images, not args.no_triangulate
             )
             near, far, nf_source = depth.near, depth.far, depth.source
-            anchors = None if args.no_anchors else depth.anchors
+            anchors = depth.anchors if args.anchors else None
             case_name = (name or "posed") + (f" set {k}" if len(sets) > 1 else "")
             cases.append(engine.PosedCase(images, cameras, t_images, t_cams, near, far, case_name,
                                           anchors))  # fmt: skip

@@ -125,10 +125,11 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--near", type=float, default=None, help="near depth (default: estimated)")
     p.add_argument("--far", type=float, default=None, help="far depth (default: estimated)")
     p.add_argument(
-        "--no-anchors",
+        "--anchors",
         action="store_true",
-        help="leave each input's depth as the generator made it, instead of scaling it to "
-        "agree with the points (COLMAP's or triangulated) that input observes",
+        help="scale each input's depth to agree with the points (COLMAP's or triangulated) it "
+        "observes, before the depth sweep (off by default: on eight real sets it moved the "
+        "enhanced view by -0.2 to +0.4 dB; BENCHMARKS 'Depth range from the inputs' own points')",
     )
     p.add_argument(
         "--no-triangulate",
@@ -592,7 +593,7 @@ def _reconstruct_into(out: Path, args: argparse.Namespace, photos=None) -> Recon
     images, cameras = load_views(posed, inputs, size, background, progress=True)
     depth = near_far(posed, inputs, cameras, args.near, args.far, images, not args.no_triangulate)
     near, far, nf_source = depth.near, depth.far, depth.source
-    anchors = None if args.no_anchors else depth.anchors
+    anchors = depth.anchors if args.anchors else None
     names = [posed.views[i].name for i in inputs]
     print(
         f"reconstructing from {len(inputs)} views ({', '.join(names)}) at {size[0]}x{size[1]}, "

@@ -219,7 +219,7 @@ def task_reconstruct(params: dict, progress: Progress) -> dict:
             progress(0.33, "triangulating the inputs (SIFT) for the scene's depth range")
         r = depth_range(images, cameras, near=near, far=far, triangulate=triangulate)
         near, far, range_source = r.near, r.far, r.source
-        anchors = r.anchors if params.get("anchors", True) else None
+        anchors = r.anchors if params.get("anchors", False) else None  # opt-in, as in the CLI
     rec = model.reconstruct(
         images.to(device), cameras, near, far, budget=params.get("budget") or None,
         anchors=anchors,

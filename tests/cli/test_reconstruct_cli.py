@@ -98,7 +98,8 @@ def test_reconstruct_distorted_instant_ngp_transforms(tmp_path):
 
 def test_reconstruct_triangulates_a_set_without_near_far_or_points(tmp_path):
     """A transforms.json set with neither near/far nor points (the textured plane at z = 3):
-    the report names the points triangulated from the inputs; --no-triangulate the cameras."""
+    the report names the points triangulated from the inputs (--no-triangulate: the cameras),
+    and with --anchors the views whose depth was scaled to them."""
     images, cams = textured_plane_views()
     (tmp_path / "set" / "images").mkdir(parents=True)
     frames = []
@@ -106,12 +107,15 @@ def test_reconstruct_triangulates_a_set_without_near_far_or_points(tmp_path):
         write_image(tmp_path / "set" / "images" / f"{i}.png", img)
         frames.append(Frame(cam, f"images/{i}.png", {}))
     write_transforms(tmp_path / "set" / "transforms.json", frames, {})
-    for flag, source in (([], "points triangulated from the 3 inputs"),
-                         (["--no-triangulate"], "the input cameras")):  # fmt: skip
-        out = tmp_path / f"out{len(flag)}"
+    runs = ((["--no-triangulate"], "the input cameras"),
+            ([], "points triangulated from the 3 inputs"),
+            (["--anchors"], "depth scaled to the points in 3 of 3 views (x"))  # fmt: skip
+    for k, (flag, source) in enumerate(runs):
+        out = tmp_path / f"out{k}"
         assert cli("reconstruct", tmp_path / "set", "--out", out, "--size", "64",
                    "--render", "none", *flag) == 0  # fmt: skip
-        assert source in (out / "report.md").read_text()
+        report = (out / "report.md").read_text()
+        assert source in report and ("depth scaled" in report) == (flag == ["--anchors"])
 
 
 def _break(path: Path, how: str) -> None:

@@ -219,8 +219,9 @@ def test_reconstruct_estimates_trust_from_three_views(scene) -> None:
 
 def test_reconstruct_without_near_far_triangulates_the_inputs(tmp_path: Path) -> None:
     """No near/far from the add-on: the inputs' own points give them (said in the progress and
-    the result), close around the textured plane at depth PLANE_Z; ``triangulate: False``
-    falls back to the cameras' estimate, several times wider."""
+    the result), close around the textured plane at depth PLANE_Z, and with ``anchors: True``
+    the views' depth scaled to them; ``triangulate: False`` falls back to the cameras'
+    estimate, several times wider."""
     from prosplat.core.image_io import write_image
 
     images, cams = textured_plane_views()
@@ -236,6 +237,8 @@ def test_reconstruct_without_near_far_triangulates_the_inputs(tmp_path: Path) ->
     assert "points triangulated from the 3 inputs" in res["near_far_source"]
     assert any("triangulating the inputs" in m for m in seen)
     assert 0.7 * PLANE_Z < near < PLANE_Z < far < 1.7 * PLANE_Z
+    assert res["anchored_views"] == 0  # anchors are opt-in
+    assert run_task("reconstruct", {**params, "anchors": True})["anchored_views"] > 0
     plain = run_task("reconstruct", {**params, "triangulate": False})
     assert plain["near_far_source"] == "the input cameras"
     assert plain["near_far"][1] / plain["near_far"][0] > 2 * far / near
