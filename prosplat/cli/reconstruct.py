@@ -128,8 +128,8 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         "--anchors",
         action="store_true",
         help="scale each input's depth to agree with the points (COLMAP's or triangulated) it "
-        "observes, before the depth sweep (off by default: on eight real sets it moved the "
-        "enhanced view by -0.2 to +0.4 dB; BENCHMARKS 'Depth range from the inputs' own points')",
+        "observes, before the depth sweep (off by default: on four real sets it moved the "
+        "enhanced view by -1.1 to +0.4 dB; BENCHMARKS 'Depth range from the inputs' own points')",
     )
     p.add_argument(
         "--no-triangulate",
