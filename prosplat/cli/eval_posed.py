@@ -14,6 +14,7 @@ from torch import Tensor
 
 from prosplat.cli.reconstruct import (
     add_common_arguments,
+    anchors_of,
     load_model,
     missing_note,
     near_far,
@@ -88,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
                 posed, chosen, cameras, args.near, args.far, images, not args.no_triangulate
             )
             near, far, nf_source = depth.near, depth.far, depth.source
-            anchors = depth.anchors if args.anchors else None
+            anchors = anchors_of(depth, args)
             case_name = (name or "posed") + (f" set {k}" if len(sets) > 1 else "")
             cases.append(engine.PosedCase(images, cameras, t_images, t_cams, near, far, case_name,
                                           anchors))  # fmt: skip

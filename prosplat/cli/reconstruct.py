@@ -508,6 +508,16 @@ def reconstruct_gaussians(model, images, cameras, near, far, args, anchors=None)
     return rec.gaussians.detach(), time.perf_counter() - t0, note
 
 
+def anchors_of(depth, args: argparse.Namespace):
+    """The depth anchors ``--anchors`` asks for: the points that gave the depth range; None
+    without the flag, or (said in one line) when the range came from elsewhere."""
+    if not args.anchors:
+        return None
+    if depth.anchors is None:
+        print(f"--anchors: no points anchor these inputs (near/far from {depth.source})")
+    return depth.anchors
+
+
 def anchor_note(fits) -> str:
     """'; depth scaled to the points in K of V views (x0.94, ...)', or '' without anchors."""
     if not fits:
@@ -593,7 +603,7 @@ def _reconstruct_into(out: Path, args: argparse.Namespace, photos=None) -> Recon
     images, cameras = load_views(posed, inputs, size, background, progress=True)
     depth = near_far(posed, inputs, cameras, args.near, args.far, images, not args.no_triangulate)
     near, far, nf_source = depth.near, depth.far, depth.source
-    anchors = depth.anchors if args.anchors else None
+    anchors = anchors_of(depth, args)
     names = [posed.views[i].name for i in inputs]
     print(
         f"reconstructing from {len(inputs)} views ({', '.join(names)}) at {size[0]}x{size[1]}, "

@@ -96,7 +96,7 @@ def test_reconstruct_distorted_instant_ngp_transforms(tmp_path):
     assert "opencv distortion, undistorted" in report and "the input cameras" in report
 
 
-def test_reconstruct_triangulates_a_set_without_near_far_or_points(tmp_path):
+def test_reconstruct_triangulates_a_set_without_near_far_or_points(tmp_path, capsys):
     """A transforms.json set with neither near/far nor points (the textured plane at z = 3):
     the report names the points triangulated from the inputs (--no-triangulate: the cameras),
     and with --anchors the views whose depth was scaled to them."""
@@ -116,6 +116,12 @@ def test_reconstruct_triangulates_a_set_without_near_far_or_points(tmp_path):
                    "--render", "none", *flag) == 0  # fmt: skip
         report = (out / "report.md").read_text()
         assert source in report and ("depth scaled" in report) == (flag == ["--anchors"])
+    capsys.readouterr()
+    assert cli("reconstruct", tmp_path / "set", "--out", tmp_path / "out3", "--size", "64",
+               "--render", "none", "--anchors", "--no-triangulate") == 0  # fmt: skip
+    assert "--anchors: no points anchor these inputs (near/far from the input cameras)" in (
+        capsys.readouterr().out
+    )
 
 
 def _break(path: Path, how: str) -> None:
