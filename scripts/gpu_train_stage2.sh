@@ -18,7 +18,9 @@
 #   raw128:2,4:128:0; e.g. add ref64:2,4:64:300 for renders refined as `prosplat.pipeline.refine` does).
 # RATE=SECONDS: a step's time an earlier call printed ("probe: S s/step") skips the probe, whose
 #   first step costs ~100 s on a fresh machine (paid again by the run itself); batch 16: 0.104.
-# INIT= another stage 2 to start from (default: the shipped one; a file that travels too).
+# INIT= another stage 2 to start from (default: the shipped one; a file that travels too, or a
+#   path on a warm machine: copy an earlier call's $W/s2_run/improve.safetensors first, since
+#   each call starts its run anew).
 # GENERATOR= the generator whose renders are curated (default: the shipped one; a candidate's
 #   .safetensors travels in the carry, e.g. under .gpu/). A warm machine reuses the sets an
 #   earlier call curated: give another WORK= when GENERATOR or SETS change between calls.
@@ -43,7 +45,7 @@ OUT=${OUT:-/tmp/out}
 W=${WORK:-/tmp}  # what a warm machine keeps between calls: curated sets, runs, logs
 PY=${PY:-python3}
 DEVICE=${DEVICE:-cuda}
-rm -rf "$W/s2_probe"
+rm -rf "$W/s2_probe" "$W/s2_run"  # a second call trains anew (INIT= to go on from the first)
 mkdir -p "$OUT" "$W/cache" "$W/s2_sets" "$W/s2_logs"
 $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
   --target "$W/site" .whl/*.whl || exit 1
