@@ -78,11 +78,8 @@ def point_depths(points: Tensor, camera: Camera, height: int, width: int) -> tup
     z [M])`` of the points in front of the camera and inside the map."""
     if (camera.width, camera.height) != (width, height):
         camera = camera.resized(width, height)
-    uv, z = camera.project(points.to(torch.float64))  # [P,2], [P]
-    c, r = uv[:, 0].floor(), uv[:, 1].floor()
-    ok = (z > 0) & (c >= 0) & (c < width) & (r >= 0) & (r < height)
-    idx = (r[ok] * width + c[ok]).long()
-    return idx, z[ok]
+    col, row, z, inside = camera.nearest_pixels(points.to(torch.float64))  # [P] each
+    return row[inside] * width + col[inside], z[inside]
 
 
 def fit_scale(z_map: Tensor, z_pt: Tensor, iters: int = 10) -> float:

@@ -34,20 +34,13 @@ __all__ = ["DepthRange", "depth_range"]
 @dataclass(frozen=True)
 class DepthRange:
     """near/far for one set of inputs, a phrase saying where they came from, and the points
-    that gave them (``points [P,3]``, ``observed[v]`` indices per input; None when the range
-    did not come from points)."""
+    that gave them as depth anchors for :meth:`prosplat.ProSplat.reconstruct` (None when the
+    range did not come from points)."""
 
     near: float
     far: float
     source: str
-    points: Tensor | None = None
-    observed: list[Tensor] | None = None
-
-    @property
-    def anchors(self) -> DepthAnchors | None:
-        """The points as depth anchors for :meth:`prosplat.ProSplat.reconstruct` (None
-        without points)."""
-        return None if self.points is None else DepthAnchors(self.points, self.observed)
+    anchors: DepthAnchors | None = None
 
 
 def can_triangulate() -> bool:
@@ -80,7 +73,7 @@ def depth_range(
             where nothing else gives a range.
     """
     cameras = list(cameras)
-    est, src, pts, obs = None, [], None, None
+    est, src, anchors = None, [], None
     if near is None or far is None:
         if file_range is not None:
             est = file_range
@@ -89,7 +82,7 @@ def depth_range(
             est = near_far_from_points(points, cameras, observed)
             if est is not None:
                 src.append(f"COLMAP points seen by the inputs ({len(points)} points)")
-                pts, obs = points, None if observed is None else list(observed)
+                anchors = DepthAnchors(points, None if observed is None else list(observed))
         if est is None and triangulate and len(cameras) >= 2 and can_triangulate():
             from prosplat.poses import quiet_colmap, triangulate_inputs
 
@@ -101,7 +94,7 @@ def depth_range(
                     f"{len(sparse.points)} points triangulated from the {len(cameras)} inputs "
                     f"({sparse.seconds:.1f} s)"
                 )
-                pts, obs = sparse.points, sparse.observed
+                anchors = DepthAnchors(sparse.points, sparse.observed)
         if est is None:
             est = near_far_from_cameras(cameras)
             src.append("the input cameras")
@@ -111,4 +104,4 @@ def depth_range(
         src.insert(0, given_name)
     if not (0 < n < f) or n != n or f != f:
         raise ValueError(f"near/far must satisfy 0 < near < far, got near={n}, far={f}")
-    return DepthRange(float(n), float(f), " + ".join(src), pts, obs)
+    return DepthRange(float(n), float(f), " + ".join(src), anchors)

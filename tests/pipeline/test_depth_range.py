@@ -24,7 +24,7 @@ def test_triangulated_points_bracket_the_plane_tighter_than_the_cameras(plane):
     # the plane is seen at 7-8 degrees from its normal: depths of about 2.86-3.15 in these cameras
     assert NEAR_MARGIN * 2.75 < r.near < NEAR_MARGIN * PLANE_Z
     assert FAR_MARGIN * PLANE_Z < r.far < FAR_MARGIN * 3.25
-    assert r.points is not None and len(r.observed) == 3
+    assert r.anchors is not None and len(r.anchors.observed) == 3
     cam_near, cam_far = near_far_from_cameras(cams)
     assert r.far / r.near < 0.5 * cam_far / cam_near
 
@@ -40,15 +40,15 @@ def test_sources_in_order(plane):
     assert (r.near, r.far) == (0.5, 3.0) and r.source.startswith("--near/--far + the near/far")
     # the file's own range before any points
     r = depth_range(images, cams, file_range=(2.0, 3.0), points=pts)
-    assert (r.near, r.far) == (2.0, 3.0) and r.points is None
+    assert (r.near, r.far) == (2.0, 3.0) and r.anchors is None
     # COLMAP points before triangulating: their depth 5, not the plane's 3
     r = depth_range(images, cams, points=pts)
     assert r.near == pytest.approx(NEAR_MARGIN * 5.0, rel=0.02) and "COLMAP points" in r.source
-    assert r.points is pts
+    assert r.anchors.points is pts
     # no triangulation: the cameras
     r = depth_range(images, cams, triangulate=False)
     assert (r.near, r.far) == pytest.approx(near_far_from_cameras(cams))
-    assert r.source == "the input cameras" and r.points is None
+    assert r.source == "the input cameras" and r.anchors is None
 
 
 def test_featureless_inputs_fall_back_to_the_cameras(plane):
