@@ -20,7 +20,13 @@ in this order, each Gaussian counted under the first reason that removes it:
    resolution (more pixels per unit length, f/z in its own view; ties: the earlier view)
    is kept, the coarser one dropped: it is the blurrier estimate of the same surface, and
    dropping it costs no quality (measured in BENCHMARKS.md, "budget"). The kept copy is *not*
-   enlarged: its view's Gaussians already tile its pixel grid without holes.
+   enlarged: its view's Gaussians already tile its pixel grid without holes. Only views that
+   see the point from directions within ``dedup_angle`` degrees of each other are asked
+   (:data:`DEDUP_ANGLE`): a pixel-aligned Gaussian is shaped for its own view (the adapter
+   learns its scales in that camera's frame, flattened toward it), so the copy of a view far
+   off covers the surface edge-on as the other view sees it, and dropping the other view's
+   own copy tears cracks through which the background shows (the real fox's chest crossed by
+   white ropes of wallpaper; BENCHMARKS "Duplicates only between nearby views").
 4. **over budget** (only if ``budget`` is given): the survivors are thinned *evenly*. For
    pixel-aligned Gaussians (N = V·H·W) each pixel has a rank in an 8x8 ordered-dither
    (Bayer) pattern, so keeping the lowest ranks keeps a uniform lattice (1/2: a checkerboard,
@@ -49,9 +55,14 @@ from prosplat.core.camera import Camera
 from prosplat.core.gaussians import Gaussians
 from prosplat.render.projection import project_gaussians
 
-__all__ = ["budget_arg", "prune_gaussians", "prune_pixel_aligned", "importance"]
+__all__ = ["DEDUP_ANGLE", "budget_arg", "prune_gaussians", "prune_pixel_aligned", "importance"]
 
 _RANGE_SLACK = 1e-3  # relative: a Gaussian exactly at near/far is never dropped by rounding
+
+#: degrees: two views' Gaussians can be duplicates only where the views' rays to the point lie
+#: within this angle of each other (rule 3; chosen on eight real photo sets and the twelve
+#: 512-px test scenes, BENCHMARKS "Duplicates only between nearby views")
+DEDUP_ANGLE = 20.0
 
 
 def check_view_index(view_index, n: int, n_views: int, what: str = "") -> None:
@@ -211,12 +222,14 @@ def _duplicates(
     alive: Tensor,
     tol: float,
     px: float,
+    angle: float,
 ) -> Tensor:
     """[N] bool: alive Gaussians whose surface another view's alive Gaussian covers at a
-    higher resolution (see rule 3 in the module docstring)."""
+    higher resolution, seen from within ``angle`` degrees (rule 3 in the module docstring)."""
     n = means.shape[0]
     dup = torch.zeros(n, dtype=torch.bool, device=means.device)
     res, res_maps = _resolution(means, view_index, cameras, alive)
+    min_cos = math.cos(math.radians(angle))
     for j in range(len(cameras)):
         idx = torch.nonzero(alive & (view_index == j)).squeeze(1)
         if idx.numel() == 0:
@@ -237,7 +250,10 @@ def _duplicates(
             agree = (d - z).abs() <= tol * z + px / res_j + spread
             res_i = res_maps[i][row, col]  # 0 where view i kept nothing at that pixel
             finer = (res_i > res_j) | ((res_i == res_j) & (i < j))
-            hit = inside & valid & agree & (res_i > 0) & finer
+            ray_i = pts - cam.center.to(pts)  # [M,3] from each camera to the point
+            ray_j = pts - cameras[j].center.to(pts)
+            cos = (ray_i * ray_j).sum(1) / (ray_i.norm(dim=1) * ray_j.norm(dim=1)).clamp_min(1e-300)
+            hit = inside & valid & agree & (res_i > 0) & finer & (cos >= min_cos)
             dup[idx[hit]] = True
             idx = idx[~hit]  # found once is enough: later views test only the rest
     return dup
@@ -291,6 +307,7 @@ def prune_gaussians(
     budget: int | float | None = None,
     dedup_tol: float | None = 0.02,
     dedup_px: float = 2.0,
+    dedup_angle: float = DEDUP_ANGLE,
 ) -> tuple[Gaussians, Tensor, dict]:
     """Drop the Gaussians a scene does not need (see the module docstring for the rules).
 
@@ -332,6 +349,8 @@ def prune_gaussians(
     )
     if not (math.isfinite(dedup_px) and dedup_px >= 0):
         raise ValueError(f"dedup_px must be a finite non-negative number, got {dedup_px}")
+    if not (math.isfinite(dedup_angle) and 0 <= dedup_angle <= 180):
+        raise ValueError(f"dedup_angle must be in [0, 180] degrees, got {dedup_angle}")
     n = len(gaussians)
     g = gaussians.detach()
     means = g.means.to(torch.float64)
@@ -342,7 +361,9 @@ def prune_gaussians(
     alive = ~transparent & ~oob
     dup = torch.zeros_like(alive)
     if dedup_tol is not None:
-        dup = _duplicates(means, view_index, depths, cameras, alive, dedup_tol, dedup_px)
+        dup = _duplicates(
+            means, view_index, depths, cameras, alive, dedup_tol, dedup_px, dedup_angle
+        )
     alive &= ~dup
 
     over = torch.zeros_like(alive)

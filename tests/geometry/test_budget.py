@@ -11,6 +11,7 @@ from prosplat import Camera, Gaussians, render
 from prosplat.data.overlap import covisibility
 from prosplat.eval.demo_scene import orbit_cameras, pixel_aligned_gaussians, raycast
 from prosplat.geometry.budget import (
+    DEDUP_ANGLE,
     _budget_count,
     _dither_rank,
     bilinear_depth,
@@ -48,9 +49,10 @@ def _visible_in(src, src_depth, dst, dst_depth, rel_tol=0.02):
 def test_duplicates_keep_the_copy_of_the_closer_view(scene):
     """Of a surface both views see, the copy of the view nearer to it (more pixels per unit
     length, same focal length here) is kept and the other dropped; what only one view sees
-    is kept."""
+    is kept. (The views see their shared points 16-74 degrees apart: the angle limit is
+    opened here, and tested on its own below.)"""
     g, vi, depths, cams = scene
-    _, keep, stats = prune_gaussians(g, vi, depths, cams)
+    _, keep, stats = prune_gaussians(g, vi, depths, cams, dedup_angle=180)
     assert stats["input"] == 2 * HW
     assert stats["kept"] == int(keep.sum()) == 2 * HW - stats["duplicate"]
     assert stats["transparent"] == stats["out_of_bounds"] == stats["over_budget"] == 0
@@ -74,6 +76,33 @@ def test_duplicates_keep_the_copy_of_the_closer_view(scene):
     # Each shared surface point is kept once: about 1 - covisibility of the pixels go.
     cov = covisibility(cams[1], depths[1], cams[0], depths[0])
     assert 0.55 < cov < 0.65 and stats["duplicate"] > 0.75 * cov * HW
+
+
+def _ray_cos(means: torch.Tensor, a: Camera, b: Camera) -> torch.Tensor:
+    """[N] cosine of the angle between the rays from cameras a and b to each point."""
+    ra, rb = means - a.center.double(), means - b.center.double()
+    return (ra * rb).sum(1) / (ra.norm(dim=1) * rb.norm(dim=1))
+
+
+@pytest.mark.parametrize("limit", [30.0, 45.0])
+def test_duplicates_only_between_views_that_see_the_point_alike(scene, limit):
+    """Two views' copies count as one surface only where their rays to it lie within
+    ``dedup_angle``: a pixel-aligned Gaussian is shaped for its own view, so a far-off view's
+    copy covers the surface edge-on as the other view sees it. The drops are exactly the
+    open test's drops within the limit (two views: each point is asked of one other view)."""
+    g, vi, depths, cams = scene
+    cos = _ray_cos(g.means.double(), cams[0], cams[1])  # [N]
+    near = cos >= math.cos(math.radians(limit))
+    assert 200 < int(near.sum()) < len(g) - 200  # both kinds of point occur
+    _, keep_open, _ = prune_gaussians(g, vi, depths, cams, dedup_angle=180)
+    _, keep, stats = prune_gaussians(g, vi, depths, cams, dedup_angle=limit)
+    assert torch.equal(~keep, ~keep_open & near)
+    assert 0 < stats["duplicate"] < int((~keep_open).sum())
+    _, keep_none, stats = prune_gaussians(g, vi, depths, cams, dedup_angle=0)
+    assert stats["duplicate"] == 0 and bool(keep_none.all())
+    _, keep_default, _ = prune_gaussians(g, vi, depths, cams)
+    near_default = cos >= math.cos(math.radians(DEDUP_ANGLE))
+    assert torch.equal(~keep_default, ~keep_open & near_default)
 
 
 def test_the_nearer_camera_keeps_a_plane_whatever_the_view_order():
@@ -256,6 +285,8 @@ def test_empty_input(scene):
         (lambda a: {**a, "bounds": ((1, 1, 1), (0, 0, 0))}, "bounds"),
         (lambda a: {**a, "dedup_tol": -0.1}, "dedup_tol"),
         (lambda a: {**a, "dedup_px": float("nan")}, "dedup_px"),
+        (lambda a: {**a, "dedup_angle": 181.0}, "dedup_angle"),
+        (lambda a: {**a, "dedup_angle": float("nan")}, "dedup_angle"),
     ],
 )
 def test_invalid_arguments_name_themselves(scene, change, name):

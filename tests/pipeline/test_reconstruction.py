@@ -59,8 +59,18 @@ def test_budget_all_is_every_gaussian_of_the_generator_in_view_major_order(model
     assert rec.timings["generator"] > 0 and rec.timings["prune"] == rec.timings["refine"] == 0
 
 
-def test_the_default_budget_prunes_the_generators_gaussians(model, scene):
-    images, cams, _ = scene
+@pytest.fixture(scope="module")
+def close_scene():
+    """Three 32-px views 12 degrees apart: close enough for the budget's duplicate test
+    (``DEDUP_ANGLE``), which ``scene``'s 30-degree steps are not."""
+    cams = orbit_cameras(5, 32, 32, arc_deg=24.0)
+    truth = pixel_aligned_gaussians(cams)
+    images = torch.stack([render(truth, c).rgb for c in cams]).clamp(0, 1)  # [5,3,32,32]
+    return images[[0, 2, 4]], [cams[i] for i in (0, 2, 4)]
+
+
+def test_the_default_budget_prunes_the_generators_gaussians(model, close_scene):
+    images, cams = close_scene
     # the scene-wide depth factor is left out so the budget's input is the unpruned set
     full = model.reconstruct(images, cams, NEAR, FAR, budget="all", depth_scale=False)
     rec = model.reconstruct(images, cams, NEAR, FAR, depth_scale=False)
