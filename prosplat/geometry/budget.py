@@ -22,11 +22,12 @@ in this order, each Gaussian counted under the first reason that removes it:
    dropping it costs no quality (measured in BENCHMARKS.md, "budget"). The kept copy is *not*
    enlarged: its view's Gaussians already tile its pixel grid without holes. Only views that
    see the point from directions within ``dedup_angle`` degrees of each other are asked
-   (:data:`DEDUP_ANGLE`): a pixel-aligned Gaussian is shaped for its own view (the adapter
-   learns its scales in that camera's frame, flattened toward it), so the copy of a view far
-   off covers the surface edge-on as the other view sees it, and dropping the other view's
-   own copy tears cracks through which the background shows (the real fox's chest crossed by
-   white ropes of wallpaper; BENCHMARKS "Duplicates only between nearby views").
+   (:data:`DEDUP_ANGLE`). The depth test runs along view i's ray, and between views far apart
+   its slack becomes a sideways shift as view j sees it (2 % of z plus 2 footprints at 60
+   degrees: about 6 pixels at 256 px), while view i's pixel grid lies foreshortened on the
+   surface as j sees it: the copy kept does not cover j's pixels, and dropping j's own copy
+   tears cracks through which the background shows (the real fox's chest crossed by white
+   ropes of wallpaper; BENCHMARKS "Duplicates only between nearby views").
 4. **over budget** (only if ``budget`` is given): the survivors are thinned *evenly*. For
    pixel-aligned Gaussians (N = V·H·W) each pixel has a rank in an 8x8 ordered-dither
    (Bayer) pattern, so keeping the lowest ranks keeps a uniform lattice (1/2: a checkerboard,

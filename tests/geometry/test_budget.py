@@ -87,8 +87,8 @@ def _ray_cos(means: torch.Tensor, a: Camera, b: Camera) -> torch.Tensor:
 @pytest.mark.parametrize("limit", [30.0, 45.0])
 def test_duplicates_only_between_views_that_see_the_point_alike(scene, limit):
     """Two views' copies count as one surface only where their rays to it lie within
-    ``dedup_angle``: a pixel-aligned Gaussian is shaped for its own view, so a far-off view's
-    copy covers the surface edge-on as the other view sees it. The drops are exactly the
+    ``dedup_angle``: between views far apart the depth test's slack along one view's ray is a
+    sideways shift in the other's, and the kept copy leaves cracks. The drops are exactly the
     open test's drops within the limit (two views: each point is asked of one other view)."""
     g, vi, depths, cams = scene
     cos = _ray_cos(g.means.double(), cams[0], cams[1])  # [N]
